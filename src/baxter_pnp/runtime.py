@@ -1,0 +1,32 @@
+"""Start-up helpers for entry points: run under the project's virtual environment.
+
+Debian's ROS Python modules live with ``/usr/bin/python3``; the pinned numpy, scipy, OpenCV and
+PyBullet live in the project's venv (created by ``make venv`` from ``/usr/bin/python3
+--system-site-packages``, so it sees both). ``rosrun`` starts a script with its shebang
+(``/usr/bin/python3``), or through catkin's relay with the same interpreter; ``use_project_venv``
+then re-executes the script with the venv's interpreter when one is found.
+"""
+import os
+import sys
+
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def venv_python():
+    """Path of the venv interpreter: ``$BAXTER_PNP_VENV/bin/python`` or ``<repo>/.venv/bin/python``."""
+    venv = os.environ.get('BAXTER_PNP_VENV') or os.path.join(PACKAGE_ROOT, '.venv')
+    return os.path.join(venv, 'bin', 'python')
+
+
+def use_project_venv(script_path):
+    """Re-exec ``script_path`` under the venv interpreter unless already running in it.
+
+    Does nothing when the venv does not exist (e.g. a robot workstation whose system Python has
+    every dependency), so the import errors that follow name the missing module.
+    """
+    python = venv_python()
+    in_venv = os.path.realpath(sys.prefix) == os.path.realpath(os.path.dirname(os.path.dirname(python)))
+    if in_venv or not os.path.exists(python) or os.environ.get('BAXTER_PNP_NO_REEXEC'):
+        return
+    os.environ['BAXTER_PNP_NO_REEXEC'] = '1'
+    os.execv(python, [python, os.path.realpath(script_path)] + sys.argv[1:])

@@ -1,0 +1,14 @@
+#!/usr/bin/python3
+"""Perception benchmark: detection rate, pose/depth/orientation error and time per frame, per estimator."""
+import os
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # timing on one core (before numpy is imported)
+os.environ.setdefault('OMP_NUM_THREADS', '1')
+
+from baxter_pnp.runtime import use_project_venv  # noqa: E402
+use_project_venv(__file__)
+
+import sys  # noqa: E402
+
+from baxter_pnp.perception_bench import main  # noqa: E402
+
+sys.exit(main())

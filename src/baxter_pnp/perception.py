@@ -1,0 +1,77 @@
+"""Perception: one camera image in -> detected blocks with their 3D pose out (no ROS).
+
+Composes the vision pipeline (``vision.detect``) with the model-based pose estimator
+(``pose.estimate_pose``), and draws the annotated debug image. Used by ``scripts/detect_image.py``,
+the perception benchmark and the pick application.
+"""
+from dataclasses import dataclass
+from typing import Optional
+
+import cv2
+import numpy as np
+
+from baxter_pnp import models, pose, vision
+
+
+@dataclass
+class BlockObservation:
+    """A detected block and, when estimation succeeded, its pose in the camera optical frame."""
+
+    detection: vision.Detection
+    pose: Optional[pose.PoseEstimate]
+    error: Optional[str] = None
+
+    def to_json(self):
+        """JSON-ready dict (pixels, metres, quaternion x y z w); pose fields are None on failure."""
+        d = self.detection
+        estimate = self.pose
+        return {
+            'shape': d.shape,
+            'colour': d.colour,
+            'vertices_px': np.round(d.vertices_px, 3).tolist(),
+            'centroid_px': np.round(d.centroid_px, 3).tolist(),
+            'position_m': None if estimate is None else np.round(estimate.position_m, 6).tolist(),
+            'orientation_xyzw': None if estimate is None else np.round(estimate.quaternion_xyzw, 6).tolist(),
+            'depth_m': None if estimate is None else round(float(estimate.depth_m), 6),
+            'residual_px': None if estimate is None else round(float(estimate.residual_px), 4),
+            'error': self.error,
+        }
+
+
+def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=None, colour=None,
+                   method='sqp', table_plane=None):
+    """Detect blocks in ``image_bgr`` and estimate the pose of each.
+
+    ``side`` and ``height`` (m) describe the block model; ``shape``/``colour`` restrict the detections
+    (None = any). ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
+    Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed).
+    """
+    detections = vision.detect(image_bgr, vision_config,
+                               colours=None if colour is None else [colour],
+                               shapes=None if shape is None else [shape])
+    observations = []
+    for detection in detections:
+        model = models.model_for(detection.shape, side, height)
+        try:
+            estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method,
+                                          table_plane=table_plane)
+            observations.append(BlockObservation(detection, estimate))
+        except pose.PoseEstimationError as exc:
+            observations.append(BlockObservation(detection, None, str(exc)))
+    return observations
+
+
+def annotate(image_bgr, observations, camera, axis_length=0.02):
+    """Copy of the image with each block's contour, vertices, pose axes (m) and depth drawn on it."""
+    canvas = vision.draw_detections(image_bgr, [o.detection for o in observations])
+    for observation in observations:
+        estimate = observation.pose
+        if estimate is None:
+            continue
+        rvec, _ = cv2.Rodrigues(estimate.T_camera_object[:3, :3])
+        tvec = estimate.T_camera_object[:3, 3].reshape(3, 1)
+        cv2.drawFrameAxes(canvas, camera.K, camera.D, rvec, tvec, axis_length, 2)
+        u, v = (int(round(c)) for c in observation.detection.centroid_px)
+        cv2.putText(canvas, 'Z=%.1f mm' % (1000.0 * estimate.depth_m), (u + 8, v + 22),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 255), 1, cv2.LINE_AA)
+    return canvas

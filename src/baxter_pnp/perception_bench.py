@@ -52,7 +52,8 @@ def make_dataset(kind, count, seed, camera):
             offset = rng.uniform(-0.002, 0.002, size=2)
             T = make_transform(_rotation_looking_down(yaw), (offset[0], offset[1], 0.161))
         else:
-            T = synthetic.random_block_pose(rng, distance_range=(0.10, 0.40), max_tilt_deg=35.0, camera=camera)
+            T = synthetic.random_block_pose(rng, distance_range=(0.10, 0.40), max_tilt_deg=35.0, camera=camera,
+                                            block=spec)
         samples.append((spec, T, colour))
     return samples
 

@@ -31,10 +31,10 @@ def main(argv=None):
     images_dir = os.path.join(args.out, 'images')
     os.makedirs(images_dir, exist_ok=True)
     for index, (shape, side, colour, distance, tilt) in enumerate(SCENES):
+        spec = synthetic.BlockSpec(shape, side, 0.02, colour)
         T_camera_block = synthetic.random_block_pose(rng, distance_range=(distance, distance),
-                                                     max_tilt_deg=tilt, camera=camera)
-        image, _ = synthetic.render_block_scene(camera, [(synthetic.BlockSpec(shape, side, 0.02, colour),
-                                                          T_camera_block)], rng)
+                                                     max_tilt_deg=tilt, camera=camera, block=spec)
+        image, _ = synthetic.render_block_scene(camera, [(spec, T_camera_block)], rng)
         path = os.path.join(images_dir, '%02d_%s.png' % (index, shape))
         cv2.imwrite(path, image)
         x, y, z = 1000.0 * T_camera_block[:3, 3]

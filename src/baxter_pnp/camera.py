@@ -1,0 +1,225 @@
+"""Pinhole camera with plumb-bob distortion: projection, undistortion, YAML and ``CameraInfo`` I/O.
+
+Frames and units: points are in the camera optical frame (x right, y down, z forward, metres);
+pixels are (u, v) = (column, row) with the origin at the centre of the top-left pixel (OpenCV).
+Distorted pixels are raw-image coordinates; "normalised" coordinates are (X/Z, Y/Z) of the
+undistorted ray. The distortion model is OpenCV's plumb bob, ``D = (k1, k2, p1, p2, k3)``.
+
+The YAML layout is the one of ROS's ``camera_calibration_parsers`` (what ``cameracalibrator.py``
+writes and ``camera_info_manager`` reads). ROS is only imported by ``from_camera_info`` and
+``to_camera_info``.
+"""
+import functools
+import os
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import yaml
+
+from baxter_pnp.runtime import PACKAGE_ROOT
+
+DEFAULT_CAMERA_YAML = os.path.join(PACKAGE_ROOT, 'config', 'left_hand_camera.yaml')
+DISTORTION_MODEL = 'plumb_bob'
+# Iterative undistortion: OpenCV's default stops after 5 iterations (~1e-3 px); this converges.
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+
+
+@dataclass(eq=False)
+class CameraModel:
+    """Intrinsics ``K`` (3x3, pixels) and plumb-bob distortion ``D`` (5,) of an image of ``width`` x ``height`` px."""
+    width: int
+    height: int
+    K: np.ndarray
+    D: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    name: str = 'left_hand_camera'
+    frame_id: str = 'left_hand_camera'
+
+    def __post_init__(self):
+        self.width, self.height = int(self.width), int(self.height)
+        self.K = np.array(self.K, dtype=float).reshape(3, 3)
+        self.D = np.array(self.D, dtype=float).reshape(5)
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f'camera image size must be positive, got {self.width}x{self.height}')
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+            raise ValueError(f'camera_matrix: focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}')
+
+    @property
+    def fx(self):
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self):
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self):
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self):
+        return float(self.K[1, 2])
+
+    # ----------------------------------------------------------------------------- geometry
+    def project(self, points_cam):
+        """(N, 2) distorted pixels of (N, 3) points in the camera optical frame (metres, Z > 0)."""
+        points = np.asarray(points_cam, dtype=np.float64).reshape(-1, 1, 3)
+        if len(points) == 0:
+            return np.zeros((0, 2))
+        pixels, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), self.K, self.D)
+        return pixels.reshape(-1, 2)
+
+    def undistort_points(self, pixels):
+        """(N, 2) normalised coordinates (X/Z, Y/Z) of (N, 2) distorted pixels."""
+        pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if len(pixels) == 0:
+            return np.zeros((0, 2))
+        normalised = cv2.undistortPointsIter(pixels, self.K, self.D, None, None, _UNDISTORT_CRITERIA)
+        return normalised.reshape(-1, 2)
+
+    def normalised_to_pixels(self, xy):
+        """(N, 2) ideal (undistorted) pixels of (N, 2) normalised coordinates."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        return xy @ self.K[:2, :2].T + self.K[:2, 2]
+
+    def scaled(self, width, height):
+        """The same lens seen at another resolution ``width`` x ``height`` (pixels).
+
+        The image is scaled by ``s = width / self.width`` and, when the aspect ratio differs,
+        cropped or padded symmetrically top and bottom. Pixel centres are kept exact:
+        ``c' = (c + 0.5) s - 0.5`` (plus ``(height - self.height s) / 2`` for ``cy``).
+        """
+        s = width / self.width
+        K = self.K.copy()
+        K[0, 0] *= s
+        K[1, 1] *= s
+        K[0, 2] = (self.cx + 0.5) * s - 0.5
+        K[1, 2] = (self.cy + 0.5) * s - 0.5 + (height - self.height * s) / 2.0
+        return CameraModel(width, height, K, self.D.copy(), self.name, self.frame_id)
+
+    def rendering_maps(self, ideal):
+        """``cv2.remap`` maps turning an image of the pinhole camera ``ideal`` into an image of this camera.
+
+        ``ideal`` must have no distortion; it may be larger than this camera (a margin, or
+        supersampling with a scaled K). Returns float32 ``(map_x, map_y)`` of shape
+        ``(self.height, self.width)``: for each pixel of this camera, where its ray lands in
+        ``ideal``'s image. The maps are cached (read-only arrays shared between calls).
+        """
+        if np.any(ideal.D != 0):
+            raise ValueError('rendering_maps: the ideal camera must have zero distortion')
+        return _rendering_maps(self.width, self.height, tuple(self.K.ravel()), tuple(self.D),
+                               tuple(ideal.K.ravel()))
+
+    # ----------------------------------------------------------------------------- YAML / dict
+    @classmethod
+    def from_dict(cls, d):
+        """Camera from a ``camera_calibration_parsers`` dictionary; ValueError naming the bad field."""
+        for key in ('image_width', 'image_height', 'camera_matrix', 'distortion_coefficients'):
+            if key not in d:
+                raise ValueError(f'camera YAML: missing field {key!r}')
+        model = d.get('distortion_model', DISTORTION_MODEL)
+        if model != DISTORTION_MODEL:
+            raise ValueError(f'camera YAML: distortion_model {model!r} is not supported (only {DISTORTION_MODEL!r})')
+        K = _matrix_field(d, 'camera_matrix', 3, 3)
+        D = _matrix_field(d, 'distortion_coefficients', 1, 5)
+        for key, rows, cols in (('rectification_matrix', 3, 3), ('projection_matrix', 3, 4)):
+            if key in d:
+                _matrix_field(d, key, rows, cols)
+        if K[0, 0] == 0 or K[1, 1] == 0:
+            raise ValueError(f'camera YAML: camera_matrix has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
+        return cls(int(d['image_width']), int(d['image_height']), K, D.ravel(),
+                   name=str(d.get('camera_name', 'left_hand_camera')))
+
+    def to_dict(self):
+        """``camera_calibration_parsers`` dictionary (R = identity, P = [K | 0] for a monocular camera)."""
+        def matrix(rows, cols, values):
+            return {'rows': rows, 'cols': cols, 'data': [float(v) for v in np.ravel(values)]}
+        return {
+            'image_width': self.width,
+            'image_height': self.height,
+            'camera_name': self.name,
+            'camera_matrix': matrix(3, 3, self.K),
+            'distortion_model': DISTORTION_MODEL,
+            'distortion_coefficients': matrix(1, 5, self.D),
+            'rectification_matrix': matrix(3, 3, np.eye(3)),
+            'projection_matrix': matrix(3, 4, np.hstack([self.K, np.zeros((3, 1))])),
+        }
+
+    @classmethod
+    def from_yaml(cls, path):
+        """Camera from a ``camera_calibration_parsers`` YAML file."""
+        with open(path) as f:
+            d = yaml.safe_load(f)
+        if not isinstance(d, dict):
+            raise ValueError(f'camera YAML {path}: not a mapping')
+        try:
+            return cls.from_dict(d)
+        except ValueError as error:
+            raise ValueError(f'{path}: {error}') from None
+
+    def to_yaml(self, path, rms=None):
+        """Write the YAML; ``rms`` (pixels), if given, is stored as ``rms_reprojection_error``."""
+        d = self.to_dict()
+        if rms is not None:
+            d['rms_reprojection_error'] = float(rms)
+        with open(path, 'w') as f:
+            yaml.safe_dump(d, f, default_flow_style=None, sort_keys=False)
+
+    # ----------------------------------------------------------------------------- ROS edge
+    @classmethod
+    def from_camera_info(cls, msg):
+        """Camera from a ``sensor_msgs/CameraInfo`` (an empty ``D`` means no distortion)."""
+        model = msg.distortion_model or DISTORTION_MODEL
+        if model != DISTORTION_MODEL:
+            raise ValueError(f'CameraInfo: distortion_model {model!r} is not supported (only {DISTORTION_MODEL!r})')
+        if len(msg.K) != 9:
+            raise ValueError(f'CameraInfo: K must have 9 elements, got {len(msg.K)}')
+        if len(msg.D) not in (0, 5):
+            raise ValueError(f'CameraInfo: D must have 5 elements for plumb_bob, got {len(msg.D)}')
+        K = np.array(msg.K, dtype=float).reshape(3, 3)
+        if K[0, 0] == 0 or K[1, 1] == 0:
+            raise ValueError(f'CameraInfo: K has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
+        D = np.array(msg.D, dtype=float) if len(msg.D) else np.zeros(5)
+        frame_id = msg.header.frame_id or 'left_hand_camera'
+        return cls(msg.width, msg.height, K, D, name=frame_id, frame_id=frame_id)
+
+    def to_camera_info(self, header=None):
+        """``sensor_msgs/CameraInfo`` of this camera; ``header`` defaults to one with ``frame_id`` only."""
+        from sensor_msgs.msg import CameraInfo
+        from std_msgs.msg import Header
+        d = self.to_dict()
+        return CameraInfo(
+            header=header if header is not None else Header(frame_id=self.frame_id),
+            width=self.width, height=self.height, distortion_model=DISTORTION_MODEL,
+            D=d['distortion_coefficients']['data'], K=d['camera_matrix']['data'],
+            R=d['rectification_matrix']['data'], P=d['projection_matrix']['data'])
+
+
+def load_default_camera():
+    """The left hand camera of the thesis calibration (eq. 3.10-3.12), 640x480: ``config/left_hand_camera.yaml``."""
+    return CameraModel.from_yaml(DEFAULT_CAMERA_YAML)
+
+
+def _matrix_field(d, key, rows, cols):
+    """(rows, cols) array of a ``{rows, cols, data}`` YAML field, or ValueError naming ``key``."""
+    value = d[key]
+    if not isinstance(value, dict) or 'data' not in value:
+        raise ValueError(f'camera YAML: {key} must be a mapping with rows, cols and data')
+    if (value.get('rows'), value.get('cols')) != (rows, cols) or len(value['data']) != rows * cols:
+        raise ValueError(f'camera YAML: {key} must be {rows}x{cols}, got rows={value.get("rows")}, '
+                         f'cols={value.get("cols")} with {len(value["data"])} values')
+    return np.array(value['data'], dtype=float).reshape(rows, cols)
+
+
+@functools.lru_cache(maxsize=8)
+def _rendering_maps(width, height, K, D, K_ideal):
+    """Cached core of ``CameraModel.rendering_maps`` (arguments as hashable tuples)."""
+    distorted = CameraModel(width, height, np.reshape(K, (3, 3)), D)
+    ideal = CameraModel(width, height, np.reshape(K_ideal, (3, 3)))
+    u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+    normalised = distorted.undistort_points(np.column_stack([u.ravel(), v.ravel()]))
+    ideal_px = ideal.normalised_to_pixels(normalised).astype(np.float32)
+    maps = ideal_px[:, 0].reshape(height, width), ideal_px[:, 1].reshape(height, width)
+    for m in maps:
+        m.flags.writeable = False
+    return maps

@@ -1,0 +1,129 @@
+"""CameraModel: projection/undistortion, YAML and CameraInfo round trips, scaling, rendering maps."""
+import numpy as np
+import pytest
+import yaml
+
+from baxter_pnp.camera import CameraModel, load_default_camera
+
+
+@pytest.fixture(scope='module')
+def camera():
+    return load_default_camera()
+
+
+def test_default_camera_is_the_thesis_calibration(camera):
+    assert (camera.width, camera.height) == (640, 480)
+    assert (camera.fx, camera.fy, camera.cx, camera.cy) == (409.20851, 408.54186, 309.69054, 226.60469)
+    np.testing.assert_array_equal(camera.D, [0.02784, -0.05070, -0.00132, 0.00435, 0.0])
+
+
+def test_project_undistort_round_trip(camera):
+    rng = np.random.default_rng(1)
+    # points whose images span the whole frame, corners included
+    pixels = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], size=(500, 2))
+    pixels = np.vstack([pixels, [[0, 0], [639, 0], [0, 479], [639, 479]]])
+    xy = camera.undistort_points(pixels)
+    depth = rng.uniform(0.1, 2.0, size=len(xy))
+    points = np.column_stack([xy * depth[:, None], depth])
+    reprojected = camera.project(points)
+    assert np.max(np.abs(reprojected - pixels)) < 1e-6
+    # distortion matters here: the ideal pixels differ from the distorted ones by up to several pixels
+    assert np.max(np.linalg.norm(camera.normalised_to_pixels(xy) - pixels, axis=1)) > 3.0
+
+
+def test_project_matches_pinhole_without_distortion():
+    camera = CameraModel(640, 480, [[500, 0, 320], [0, 510, 240], [0, 0, 1]])
+    px = camera.project([[0.1, -0.05, 0.5]])
+    np.testing.assert_allclose(px, [[320 + 500 * 0.2, 240 - 510 * 0.1]], atol=1e-9)
+
+
+def test_yaml_round_trip(camera, tmp_path):
+    path = tmp_path / 'cam.yaml'
+    camera.to_yaml(path, rms=0.234)
+    raw = yaml.safe_load(path.read_text())
+    assert raw['distortion_model'] == 'plumb_bob'
+    assert raw['projection_matrix']['cols'] == 4 and raw['rms_reprojection_error'] == 0.234
+    loaded = CameraModel.from_yaml(path)
+    assert (loaded.width, loaded.height, loaded.name) == (camera.width, camera.height, camera.name)
+    np.testing.assert_array_equal(loaded.K, camera.K)
+    np.testing.assert_array_equal(loaded.D, camera.D)
+
+
+def test_camera_info_round_trip(camera):
+    from std_msgs.msg import Header
+    info = camera.to_camera_info()
+    assert info.header.frame_id == 'left_hand_camera' and len(info.P) == 12 and info.distortion_model == 'plumb_bob'
+    loaded = CameraModel.from_camera_info(info)
+    np.testing.assert_array_equal(loaded.K, camera.K)
+    np.testing.assert_array_equal(loaded.D, camera.D)
+    assert (loaded.width, loaded.height, loaded.frame_id) == (640, 480, 'left_hand_camera')
+    assert camera.to_camera_info(Header(frame_id='other', seq=7)).header.seq == 7
+
+
+@pytest.mark.parametrize('field, value, message', [
+    ('K', [0.0] * 9, 'focal length'),
+    ('K', [1.0] * 4, 'K must have 9'),
+    ('D', [0.1, 0.2], 'D must have 5'),
+    ('distortion_model', 'equidistant', 'distortion_model'),
+])
+def test_camera_info_rejects_bad_fields(camera, field, value, message):
+    info = camera.to_camera_info()
+    setattr(info, field, value)
+    with pytest.raises(ValueError, match=message):
+        CameraModel.from_camera_info(info)
+
+
+@pytest.mark.parametrize('edit, message', [
+    (lambda d: d['camera_matrix'].update(data=[0.0] * 9), 'zero focal length'),
+    (lambda d: d['camera_matrix'].update(rows=2), 'camera_matrix must be 3x3'),
+    (lambda d: d['distortion_coefficients'].update(data=[0.1, 0.2, 0.3]), 'distortion_coefficients must be 1x5'),
+    (lambda d: d.update(distortion_model='rational_polynomial'), 'distortion_model'),
+    (lambda d: d.pop('image_width'), 'image_width'),
+])
+def test_bad_yaml_is_rejected_naming_the_field(camera, tmp_path, edit, message):
+    d = camera.to_dict()
+    edit(d)
+    path = tmp_path / 'bad.yaml'
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(ValueError, match=message):
+        CameraModel.from_yaml(path)
+
+
+def test_scaled_same_rays(camera):
+    # 1280x800 (a Baxter camera mode) from 640x480: s = 2, 16:10 crops 80 rows of the doubled image.
+    big = camera.scaled(1280, 800)
+    assert (big.width, big.height) == (1280, 800)
+    assert big.fx == pytest.approx(2 * camera.fx) and big.fy == pytest.approx(2 * camera.fy)
+    assert big.cy == pytest.approx((camera.cy + 0.5) * 2 - 0.5 - 80)
+    np.testing.assert_array_equal(big.D, camera.D)
+    # the same 3D point lands on the same place of the scene: pixel-centre exact scaling and the crop
+    points = np.array([[0.05, -0.03, 0.4], [-0.1, 0.07, 0.3]])
+    small_px, big_px = camera.project(points), big.project(points)
+    np.testing.assert_allclose((big_px + [0.5, 0.5 + 80]) / 2 - 0.5, small_px, atol=1e-9)
+
+
+def test_rendering_maps_send_each_pixel_to_its_ideal_ray(camera):
+    ideal = CameraModel(700, 540, [[camera.fx, 0, camera.cx + 30], [0, camera.fy, camera.cy + 30], [0, 0, 1]])
+    map_x, map_y = camera.rendering_maps(ideal)
+    assert map_x.shape == (480, 640) and map_x.dtype == np.float32
+    assert camera.rendering_maps(ideal)[0] is map_x            # cached
+    # a 3D point seen by this camera at (distorted) pixel p is seen by the ideal camera at maps(p)
+    rng = np.random.default_rng(2)
+    points = np.column_stack([rng.uniform(-0.35, 0.35, 50), rng.uniform(-0.25, 0.25, 50), np.full(50, 0.45)])
+    p = camera.project(points)
+    inside = np.all((p >= 0) & (p <= [639, 479]), axis=1)
+    assert inside.sum() > 30
+    u, v = p[inside].T
+    sample = np.column_stack([_bilinear(map_x, u, v), _bilinear(map_y, u, v)])
+    np.testing.assert_allclose(sample, ideal.project(points[inside]), atol=2e-3)
+    with pytest.raises(ValueError, match='zero distortion'):
+        camera.rendering_maps(camera)
+
+
+def _bilinear(image, u, v):
+    """Bilinear sample of a 2-D float array at pixel positions (u, v)."""
+    u0 = np.minimum(np.floor(u).astype(int), image.shape[1] - 2)
+    v0 = np.minimum(np.floor(v).astype(int), image.shape[0] - 2)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u0 + 1]
+            + (1 - a) * b * image[v0 + 1, u0] + a * b * image[v0 + 1, u0 + 1])

@@ -1,0 +1,468 @@
+"""The fake Baxter's physical world (no ROS): PyBullet DIRECT, gravity, a fixed time step, simulated clock.
+
+Frames: PyBullet's world frame is Baxter's ``base`` (metres, radians, seconds). The robot is
+``urdf/baxter.urdf`` on a fixed base; the table is a static box whose top is at ``scene.table.top_z``;
+each block is a free regular prism (convex hull) whose body frame is its centre of mass, half its
+height below the ``block`` frame of docs/ARCHITECTURE.md (top-face centre).
+
+Arms: position commands run through a velocity- and acceleration-limited set-point profile tracked by
+stiff PyBullet position motors (the arm moves smoothly at <= ``speed_ratio`` x the URDF velocity limit,
+never teleports, and holds still); velocity commands use velocity motors. Gravity acts on everything;
+the motors' large force limit plays the part of Baxter's gravity compensation. Grippers: each finger
+is a prismatic position motor with the commanded force and speed, the two geared together like the
+real gripper's single drive; a grasp holds by friction and finger force only (nothing ties the block
+to the gripper).
+"""
+import math
+
+import cv2
+import numpy as np
+import pybullet as p
+
+from baxter_pnp.camera import CameraModel
+from baxter_pnp.kinematics import DEFAULT_URDF, NEUTRAL, arm_joint_names, body_indices, link_pose
+from baxter_pnp.transforms import from_xyz_quat, invert, make_transform
+
+ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
+ARM_ACCELERATION = 3.0          # rad/s^2 of the position set-point profile
+ARM_POSITION_GAIN = 0.2         # PyBullet motor position gain (fraction of the error corrected per step)
+FINGER_TRAVEL = 0.020833        # m, per finger, closed (0 %) to open (100 %)
+GRIPPER_MAX_FORCE = 35.0        # N per finger at force_percent = 100
+GRIPPER_MAX_SPEED = 0.04        # m/s per finger at velocity_percent = 100
+GRIPPER_STILL_SPEED = 0.002     # m/s: fingers slower than this (low-passed) have stopped
+GRIPPER_SPEED_FILTER = 0.03     # s, time constant of that low-pass (contact jitter is not motion)
+GRIPPER_START_TIME = 0.05       # s after a command during which the fingers count as moving
+GRIPPER_CLOSED_PERCENT = 2.0    # at or below this position the gripper is fully closed
+SOLVER_ITERATIONS = 300         # PyBullet's default 50: a blocked finger reaches ~15 N only, a held block jitters
+BLOCK_MARGIN = 0.001            # m, Bullet collision margin of the blocks' convex hulls
+BLOCK_DENSITY = 780.0           # kg/m^3 (wood: a 40 x 40 x 20 mm square weighs 25 g)
+FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
+TABLE_THICKNESS = 0.04          # m
+TABLE_COLOR = (0.86, 0.86, 0.84, 1.0)
+CAMERA_NEAR, CAMERA_FAR = 0.01, 3.0          # m, render clipping planes
+IMAGE_NOISE_STD = 2.0           # grey levels (Gazebo's camera noise: 0.007 x 255)
+LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=2.0,
+             lightAmbientCoeff=0.55, lightDiffuseCoeff=0.45, lightSpecularCoeff=0.02, shadow=0)
+# OpenGL camera (x right, y up, looking along -z) from the optical frame (x right, y down, z forward).
+T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+class SimWorld:
+    """The simulated Baxter, table and blocks of ``scene`` (a ``sim.scene.Scene``); see docs/ARCHITECTURE.md."""
+
+    def __init__(self, scene, urdf_path=None, time_step=1 / 240.0):
+        self.scene = scene
+        self.time_step = float(time_step)
+        self.time = 0.0
+        self._client = p.connect(p.DIRECT)
+        p.setGravity(0, 0, -9.81, physicsClientId=self._client)
+        p.setTimeStep(self.time_step, physicsClientId=self._client)
+        p.setPhysicsEngineParameter(numSolverIterations=SOLVER_ITERATIONS, physicsClientId=self._client)
+        self._robot = p.loadURDF(urdf_path or DEFAULT_URDF, useFixedBase=True,
+                                 flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=self._client)
+        self._joints, self._links = body_indices(self._robot, self._client)
+        self._published = ['head_pan', 'l_gripper_l_finger_joint', 'l_gripper_r_finger_joint',
+                           *arm_joint_names('left'), 'r_gripper_l_finger_joint', 'r_gripper_r_finger_joint',
+                           *arm_joint_names('right')]
+        self._published_indices = [self._joints[name] for name in self._published]
+        self._arms = {side: _ArmMotion(self, side) for side in ('left', 'right')}
+        self._grippers = {side: _Gripper(self, side) for side in ('left', 'right')}
+        p.setJointMotorControl2(self._robot, self._joints['head_pan'], p.POSITION_CONTROL, targetPosition=0.0,
+                                force=ARM_MOTOR_FORCE, physicsClientId=self._client)
+        self._make_table(scene.table)
+        self._blocks = [self._make_block(obj) for obj in scene.objects]
+        self.set_arm_positions('left', scene.start_positions())
+        self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
+        self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
+
+    def close(self):
+        """Disconnect PyBullet."""
+        if self._client is not None and p.isConnected(self._client):
+            p.disconnect(self._client)
+        self._client = None
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:   # interpreter shutdown: pybullet may already be gone
+            pass
+
+    # ------------------------------------------------------------------------------------ building
+    def _make_table(self, table):
+        half = [table.size[0] / 2, table.size[1] / 2, TABLE_THICKNESS / 2]
+        collision = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self._client)
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=TABLE_COLOR,
+                                     physicsClientId=self._client)
+        body = p.createMultiBody(0.0, collision, visual,
+                                 [table.center[0], table.center[1], table.top_z - TABLE_THICKNESS / 2],
+                                 physicsClientId=self._client)
+        p.changeDynamics(body, -1, lateralFriction=FRICTION['table'], physicsClientId=self._client)
+        return body
+
+    def _make_block(self, obj):
+        model = obj.model
+        vertices, normals, indices = _prism_mesh(model.vertices[:, :2], model.height)
+        # Bullet pads a convex hull by its collision margin: build the hull that much smaller, so the block
+        # rests on the table and meets the fingers at its true size.
+        apothem = model.circumradius * math.cos(math.pi / model.n)
+        hull, _, _ = _prism_mesh(model.vertices[:, :2] * (1 - BLOCK_MARGIN / apothem),
+                                 model.height - 2 * BLOCK_MARGIN)
+        collision = p.createCollisionShape(p.GEOM_MESH, vertices=hull.tolist(), physicsClientId=self._client)
+        visual = p.createVisualShape(p.GEOM_MESH, vertices=vertices.tolist(), normals=normals.tolist(),
+                                     indices=indices.tolist(), rgbaColor=[*obj.color, 1.0],
+                                     specularColor=[0.05, 0.05, 0.05], physicsClientId=self._client)
+        area = 0.5 * model.n * model.circumradius ** 2 * math.sin(model.symmetry_angle)
+        body = p.createMultiBody(BLOCK_DENSITY * area * model.height, collision, visual,
+                                 physicsClientId=self._client)
+        p.changeDynamics(body, -1, lateralFriction=FRICTION['block'], spinningFriction=0.001,
+                         collisionMargin=BLOCK_MARGIN, physicsClientId=self._client)
+        self._place(body, model.height, obj.xy, obj.yaw)
+        return body
+
+    def _place(self, body, height, xy, yaw):
+        com = [xy[0], xy[1], self.scene.table.top_z + height / 2]
+        p.resetBasePositionAndOrientation(body, com, p.getQuaternionFromEuler([0, 0, yaw]),
+                                          physicsClientId=self._client)
+        p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self._client)
+
+    # ------------------------------------------------------------------------------------ clock
+    def step(self, n=1):
+        """Advance ``n`` physics steps of ``time_step`` seconds (arm set-points, motors, contacts)."""
+        for _ in range(int(n)):
+            for arm in self._arms.values():
+                arm.update(self.time_step)
+            p.stepSimulation(physicsClientId=self._client)
+            for gripper in self._grippers.values():
+                gripper.update(self.time_step)
+            self.time += self.time_step
+
+    # ------------------------------------------------------------------------------------ joints
+    def joint_names(self):
+        """Published joints: head_pan, l_gripper fingers, left arm, r_gripper fingers, right arm (19)."""
+        return list(self._published)
+
+    def joint_state(self):
+        """(positions (rad or m), velocities (rad/s or m/s), efforts (N m or N)) aligned with ``joint_names()``."""
+        states = p.getJointStates(self._robot, self._published_indices, physicsClientId=self._client)
+        return tuple(np.array([s[k] for s in states]) for k in (0, 1, 3))
+
+    def arm_joint_names(self, side):
+        """The 7 joint names of the ``side`` arm, s0..w2."""
+        return arm_joint_names(side)
+
+    def command_arm_positions(self, side, targets, speed_ratio=0.3):
+        """Move the named joints toward ``targets`` (rad, clipped to the limits) at <= ``speed_ratio`` x their
+        velocity limits; joints not named keep their current targets."""
+        self._arms[side].command_positions(targets, speed_ratio)
+
+    def command_arm_velocities(self, side, velocities):
+        """Drive the named joints at ``velocities`` (rad/s, clipped to the limits); the others hold still."""
+        self._arms[side].command_velocities(velocities)
+
+    def hold_arm(self, side):
+        """Stop and hold the ``side`` arm at its current angles."""
+        self._arms[side].hold()
+
+    def set_arm_positions(self, side, positions):
+        """Teleport the named joints to ``positions`` (rad) at rest and hold them there (start pose / resets)."""
+        self._arms[side].teleport(positions)
+
+    # ------------------------------------------------------------------------------------ grippers
+    def command_gripper(self, side, position_percent, force_percent=40.0, velocity_percent=50.0):
+        """Move the fingers to ``position_percent`` (0 closed .. 100 open) with ``force_percent`` of
+        ``GRIPPER_MAX_FORCE`` and ``velocity_percent`` of ``GRIPPER_MAX_SPEED`` (each clipped to 0..100)."""
+        self._grippers[side].command(position_percent, force_percent, velocity_percent)
+
+    def gripper_state(self, side):
+        """dict: position_percent (0 closed .. 100 open), force_percent (measured squeeze), moving, gripping
+        (both finger pads on the same block, stopped short of closed), missed (a close ended fully closed
+        touching nothing)."""
+        return self._grippers[side].state()
+
+    # ------------------------------------------------------------------------------------ frames
+    def _link(self, link):
+        try:
+            return self._links[link]
+        except KeyError:
+            raise ValueError(f'unknown link {link!r} (not a link of the URDF)') from None
+
+    def link_pose(self, link):
+        """T_base_link (4x4) of a URDF link frame, e.g. 'left_gripper', 'left_hand', 'left_hand_camera'."""
+        return link_pose(self._robot, self._link(link), self._client)
+
+    def link_twist(self, link):
+        """(6,) [linear velocity (m/s); angular velocity (rad/s)] of the link frame's origin, in base."""
+        state = p.getLinkState(self._robot, self._link(link), computeLinkVelocity=True,
+                               computeForwardKinematics=True, physicsClientId=self._client)
+        omega = np.asarray(state[7])
+        v_origin = np.asarray(state[6]) + np.cross(omega, np.subtract(state[4], state[0]))
+        return np.concatenate([v_origin, omega])
+
+    def object_poses(self):
+        """Ground truth T_base_block (4x4) of every block (top-face centre frame), in scene order."""
+        poses = []
+        for body, obj in zip(self._blocks, self.scene.objects):
+            position, quaternion = p.getBasePositionAndOrientation(body, physicsClientId=self._client)
+            poses.append(from_xyz_quat(position, quaternion) @ make_transform(None, [0, 0, obj.height / 2]))
+        return poses
+
+    def place_object(self, index, xy, yaw):
+        """Put block ``index`` back on the table, top-face centre above ``xy`` (m), rotated ``yaw`` (rad), at rest."""
+        self._place(self._blocks[index], self.scene.objects[index].height, xy, yaw)
+
+    # ------------------------------------------------------------------------------------ sensors
+    def range_at(self, link, min_range=0.004, max_range=0.4):
+        """Distance (m) from the link origin to the first surface along the link's +x axis (the ROS
+        ``sensor_msgs/Range`` convention; for ``left_hand_range`` that is the gripper's direction), or inf if
+        nothing lies between ``min_range`` and ``max_range``."""
+        T = self.link_pose(link)
+        origin, direction = T[:3, 3], T[:3, 0]
+        hit = p.rayTest((origin + min_range * direction).tolist(), (origin + max_range * direction).tolist(),
+                        physicsClientId=self._client)[0]
+        if hit[0] < 0:
+            return math.inf
+        return min_range + hit[2] * (max_range - min_range)
+
+    def render_camera(self, link, camera, rng=None):
+        """uint8 BGR (H, W, 3) image of ``camera`` (a ``CameraModel``) mounted at ``link``'s optical frame.
+
+        The true camera is the published one perturbed by ``scene.camera_error`` (mount offset, focal
+        scale). It is rendered as an ideal pinhole with a margin (PyBullet TinyRenderer), warped with
+        the true camera's distortion (``CameraModel.rendering_maps``) and given Gaussian noise of
+        ``IMAGE_NOISE_STD`` grey levels drawn from ``rng`` (no noise if ``rng`` is None).
+        """
+        error = self.scene.camera_error
+        K_true = camera.K.copy()
+        K_true[0, 0] *= error.focal_scale
+        K_true[1, 1] *= error.focal_scale
+        true_camera = CameraModel(camera.width, camera.height, K_true, camera.D)
+        ideal = self._ideal_camera(true_camera)
+        T_base_camera = self.link_pose(link) @ error.T_published_true
+        view = T_OPENGL_OPTICAL @ invert(T_base_camera)
+        _, _, rgba, _, _ = p.getCameraImage(
+            ideal.width, ideal.height, view.T.ravel().tolist(), _opengl_projection(ideal).T.ravel().tolist(),
+            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self._client, **LIGHT)
+        bgr = np.ascontiguousarray(np.reshape(rgba, (ideal.height, ideal.width, 4))[:, :, 2::-1])
+        image = cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+        if rng is not None:
+            noisy = rng.standard_normal(image.shape, dtype=np.float32)
+            noisy *= IMAGE_NOISE_STD
+            noisy += image + np.float32(0.5)
+            image = np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)
+        return image
+
+    def _ideal_camera(self, true_camera):
+        """Pinhole camera (no distortion, the true focal lengths) whose image covers every ray of ``true_camera``."""
+        key = (true_camera.width, true_camera.height, tuple(true_camera.K.ravel()), tuple(true_camera.D))
+        if key not in self._ideal_cameras:
+            w, h = true_camera.width, true_camera.height
+            u, v = np.linspace(0, w - 1, 64), np.linspace(0, h - 1, 64)
+            border = np.concatenate([np.column_stack([u, np.full(64, y)]) for y in (0, h - 1)]
+                                    + [np.column_stack([np.full(64, x), v]) for x in (0, w - 1)])
+            ideal_px = true_camera.normalised_to_pixels(true_camera.undistort_points(border))
+            low = np.floor(np.minimum(ideal_px.min(axis=0), 0)) - 2
+            high = np.ceil(np.maximum(ideal_px.max(axis=0), [w - 1, h - 1])) + 2
+            K = true_camera.K.copy()
+            K[:2, 2] -= low
+            size = (high - low + 1).astype(int)
+            self._ideal_cameras[key] = CameraModel(size[0], size[1], K)
+        return self._ideal_cameras[key]
+
+
+class _ArmMotion:
+    """Joint motion of one arm: a velocity/acceleration-limited set-point profile (position mode) or
+    velocity targets (velocity mode), sent to PyBullet motors every step."""
+
+    def __init__(self, world, side):
+        self._world = world
+        self.names = arm_joint_names(side)
+        self.indices = [world._joints[name] for name in self.names]
+        infos = [p.getJointInfo(world._robot, i, physicsClientId=world._client) for i in self.indices]
+        self.lower = np.array([info[8] for info in infos])
+        self.upper = np.array([info[9] for info in infos])
+        self.velocity_limits = np.array([info[11] for info in infos])
+        self.mode = 'position'
+        self.target = self.setpoint = self.setpoint_velocity = np.zeros(7)
+        self.max_speed = 0.3 * self.velocity_limits
+        self.velocity_command = np.zeros(7)
+
+    def _measured(self):
+        states = p.getJointStates(self._world._robot, self.indices, physicsClientId=self._world._client)
+        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+
+    def _vector(self, values, what):
+        unknown = set(values) - set(self.names)
+        if unknown:
+            raise ValueError(f'{what}: unknown joints {sorted(unknown)} (expected {self.names})')
+        return np.array([values.get(name, np.nan) for name in self.names], dtype=float)
+
+    def _enter_position_mode(self):
+        if self.mode != 'position':
+            q, v = self._measured()
+            self.mode, self.target, self.setpoint = 'position', q, q
+            self.setpoint_velocity = np.clip(v, -self.max_speed, self.max_speed)
+
+    def command_positions(self, targets, speed_ratio):
+        values = self._vector(targets, 'command_arm_positions')
+        self._enter_position_mode()
+        self.max_speed = float(np.clip(speed_ratio, 0.0, 1.0)) * self.velocity_limits
+        self.target = np.where(np.isnan(values), self.target, np.clip(values, self.lower, self.upper))
+
+    def command_velocities(self, velocities):
+        values = np.nan_to_num(self._vector(velocities, 'command_arm_velocities'))
+        self.mode = 'velocity'
+        self.velocity_command = np.clip(values, -self.velocity_limits, self.velocity_limits)
+
+    def hold(self):
+        q, _ = self._measured()
+        self.mode, self.target, self.setpoint, self.setpoint_velocity = 'position', q, q, np.zeros(7)
+
+    def teleport(self, positions):
+        values = self._vector(positions, 'set_arm_positions')
+        q, _ = self._measured()
+        q = np.where(np.isnan(values), q, np.clip(values, self.lower, self.upper))
+        for index, angle in zip(self.indices, q):
+            p.resetJointState(self._world._robot, index, angle, 0.0, physicsClientId=self._world._client)
+        self.mode, self.target, self.setpoint, self.setpoint_velocity = 'position', q, q, np.zeros(7)
+        self.update(0.0)
+
+    def update(self, dt):
+        """Advance the set-point by ``dt`` seconds and command the motors."""
+        world = self._world
+        if self.mode == 'velocity':
+            q, _ = self._measured()
+            step = max(dt, world.time_step)       # stop on a joint limit instead of driving into it
+            velocities = np.clip(self.velocity_command, (self.lower - q) / step, (self.upper - q) / step)
+            p.setJointMotorControlArray(world._robot, self.indices, p.VELOCITY_CONTROL,
+                                        targetVelocities=velocities.tolist(), forces=[ARM_MOTOR_FORCE] * 7,
+                                        physicsClientId=world._client)
+            return
+        self.setpoint, self.setpoint_velocity = profile_step(self.setpoint, self.setpoint_velocity, self.target,
+                                                             self.max_speed, ARM_ACCELERATION, dt)
+        for index, position, velocity, max_speed in zip(self.indices, self.setpoint, self.setpoint_velocity,
+                                                         self.max_speed):
+            p.setJointMotorControl2(world._robot, index, p.POSITION_CONTROL, targetPosition=position,
+                                    targetVelocity=velocity, force=ARM_MOTOR_FORCE, positionGain=ARM_POSITION_GAIN,
+                                    velocityGain=1.0, maxVelocity=max_speed, physicsClientId=world._client)
+
+
+def profile_step(position, velocity, target, max_speed, acceleration, dt):
+    """One ``dt`` step of a per-joint set-point moving to ``target`` with |velocity| <= ``max_speed`` and
+    |acceleration| <= ``acceleration`` (braking in time to stop on the target). Returns (position, velocity)."""
+    error = target - position
+    stopping_speed = np.sqrt(2.0 * acceleration * np.abs(error))
+    desired = np.sign(error) * np.minimum(max_speed, stopping_speed)
+    velocity = velocity + np.clip(desired - velocity, -acceleration * dt, acceleration * dt)
+    new_position = position + velocity * dt
+    arrived = (np.sign(target - new_position) != np.sign(error)) | (np.abs(error) <= 1e-9)
+    return np.where(arrived, target, new_position), np.where(arrived, 0.0, velocity)
+
+
+class _Gripper:
+    """One electric gripper: two prismatic fingers, each a force- and speed-limited position motor, geared together."""
+
+    def __init__(self, world, side):
+        self._world = world
+        g = side[0]
+        self.indices = [world._joints[f'{g}_gripper_l_finger_joint'], world._joints[f'{g}_gripper_r_finger_joint']]
+        self.signs = np.array([1.0, -1.0])      # finger joint = sign * opening (m)
+        self.contact_links = [
+            {world._links[f'{g}_gripper_{finger}_finger'], world._links[f'{g}_gripper_{finger}_finger_tip']}
+            for finger in ('l', 'r')]
+        self.target = FINGER_TRAVEL
+        self.command_time = -math.inf
+        self.closing = False
+        self.gripping = False                   # latched: set when the fingers stop on a block, kept while they hold it
+        self.speed = 0.0                        # m/s, low-passed opening speed of the fingers
+        for index, sign in zip(self.indices, self.signs):
+            p.resetJointState(world._robot, index, sign * FINGER_TRAVEL, physicsClientId=world._client)
+        # The real fingers share one drive: a gear constraint keeps them symmetric (q_r = -q_l), so a squeezed
+        # block is centred instead of drifting between two equal, independent forces.
+        gear = p.createConstraint(world._robot, self.indices[0], world._robot, self.indices[1], p.JOINT_GEAR,
+                                  [0, 1, 0], [0, 0, 0], [0, 0, 0], physicsClientId=world._client)
+        p.changeConstraint(gear, gearRatio=1.0, erp=0.2, maxForce=GRIPPER_MAX_FORCE, physicsClientId=world._client)
+        self.command(100.0, 40.0, 50.0)
+
+    def command(self, position_percent, force_percent, velocity_percent):
+        world = self._world
+        self.target = float(np.clip(position_percent, 0.0, 100.0)) / 100.0 * FINGER_TRAVEL
+        self.closing = self.target < self._opening()[0].mean()
+        self.gripping = self.gripping and self.closing
+        self.command_time = world.time
+        force = float(np.clip(force_percent, 0.0, 100.0)) / 100.0 * GRIPPER_MAX_FORCE
+        speed = float(np.clip(velocity_percent, 0.0, 100.0)) / 100.0 * GRIPPER_MAX_SPEED
+        for index, sign in zip(self.indices, self.signs):
+            p.setJointMotorControl2(world._robot, index, p.POSITION_CONTROL, targetPosition=sign * self.target,
+                                    force=force, maxVelocity=speed, physicsClientId=world._client)
+
+    def update(self, dt):
+        """Low-pass the fingers' opening speed (time constant ``GRIPPER_SPEED_FILTER``) after a step of ``dt`` s."""
+        alpha = dt / (GRIPPER_SPEED_FILTER + dt)
+        self.speed += alpha * (self._opening()[1].mean() - self.speed)
+
+    def _opening(self):
+        """(opening (2,) m, opening speed (2,) m/s, squeeze force (2,) N) of the two fingers."""
+        states = p.getJointStates(self._world._robot, self.indices, physicsClientId=self._world._client)
+        return tuple(self.signs * np.array([s[k] for s in states]) for k in (0, 1, 3))
+
+    def _touched_blocks(self, finger):
+        """Body ids of the blocks touching finger 0 (l) or 1 (r), its paddle tip included."""
+        blocks = set(self._world._blocks)
+        return {contact[2] for contact in p.getContactPoints(bodyA=self._world._robot,
+                                                             physicsClientId=self._world._client)
+                if contact[3] in self.contact_links[finger] and contact[2] in blocks}
+
+    def state(self):
+        opening, _, force = self._opening()
+        position_percent = float(opening.mean() / FINGER_TRAVEL * 100.0)
+        starting = (self._world.time - self.command_time < GRIPPER_START_TIME
+                    and np.max(np.abs(opening - self.target)) > 5e-4)
+        moving = bool(abs(self.speed) > GRIPPER_STILL_SPEED or starting)
+        touched = [self._touched_blocks(0), self._touched_blocks(1)]
+        closed = position_percent <= GRIPPER_CLOSED_PERCENT
+        holding = bool(touched[0] & touched[1]) and not closed
+        # A block squeezed by compliant pads creeps a little: once gripping, only losing it or opening ends it.
+        self.gripping = holding and (self.gripping or not moving)
+        return {
+            'position_percent': position_percent,
+            'force_percent': float(np.clip(-force.mean() / GRIPPER_MAX_FORCE * 100.0, 0.0, 100.0)),
+            'moving': moving and not self.gripping,
+            'gripping': self.gripping,
+            'missed': self.closing and not moving and closed and not (touched[0] | touched[1]),
+        }
+
+
+def _prism_mesh(top_xy, height):
+    """Flat-shaded triangle mesh of a prism around its centre of mass: top face ``top_xy`` (n, 2) at
+    z = +height/2, bottom at -height/2. Returns (vertices (V, 3), normals (V, 3), indices (T*3,))."""
+    n = len(top_xy)
+    top = np.column_stack([top_xy, np.full(n, height / 2)])
+    bottom = np.column_stack([top_xy, np.full(n, -height / 2)])
+    vertices, normals, indices = [], [], []
+
+    def face(points, normal):
+        start = len(vertices)
+        vertices.extend(points)
+        normals.extend([normal] * len(points))
+        indices.extend(i for k in range(1, len(points) - 1) for i in (start, start + k, start + k + 1))
+
+    face(list(top), (0.0, 0.0, 1.0))
+    face(list(bottom[::-1]), (0.0, 0.0, -1.0))
+    for k in range(n):
+        a, b = k, (k + 1) % n
+        outward = np.array([top_xy[b, 1] - top_xy[a, 1], top_xy[a, 0] - top_xy[b, 0], 0.0])
+        face([bottom[a], bottom[b], top[b], top[a]], tuple(outward / np.linalg.norm(outward)))
+    return np.array(vertices), np.array(normals), np.array(indices)
+
+
+def _opengl_projection(camera, near=CAMERA_NEAR, far=CAMERA_FAR):
+    """4x4 OpenGL projection matrix making PyBullet's TinyRenderer image (row 0 on top) that of the pinhole
+    ``camera`` in OpenCV pixel convention. TinyRenderer samples pixel column u at NDC x = 2u/W - 1 and row v at
+    NDC y = 1 - 2(v + 1)/H (measured: rendered blocks land on ``camera.project`` to 0.1 px)."""
+    w, h = camera.width, camera.height
+    return np.array([
+        [2 * camera.fx / w, 0.0, 1 - 2 * camera.cx / w, 0.0],
+        [0.0, 2 * camera.fy / h, 2 * (camera.cy + 1) / h - 1, 0.0],
+        [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
+        [0.0, 0.0, -1.0, 0.0]])

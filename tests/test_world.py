@@ -1,0 +1,258 @@
+"""SimWorld: arm motion, physical grasping, gripper state, camera rendering, range sensor, ground truth."""
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from baxter_pnp.camera import load_default_camera
+from baxter_pnp.kinematics import ArmKinematics
+from baxter_pnp.models import model_for
+from baxter_pnp.sim.scene import CameraError, load_scene, load_start_poses
+from baxter_pnp.sim.world import SimWorld
+from baxter_pnp.transforms import invert, make_transform, transform_points
+
+LEFT = ['left_s0', 'left_s1', 'left_e0', 'left_e1', 'left_w0', 'left_w1', 'left_w2']
+VELOCITY_LIMITS = np.array([1.5, 1.5, 1.5, 1.5, 4.0, 4.0, 4.0])
+
+
+@pytest.fixture(scope='module')
+def kinematics():
+    k = ArmKinematics('left')
+    yield k
+    k.close()
+
+
+@pytest.fixture
+def world():
+    w = SimWorld(load_scene())
+    yield w
+    w.close()
+
+
+@pytest.fixture(scope='module')
+def camera():
+    return load_default_camera().scaled(640, 400)
+
+
+def left_angles(world):
+    positions, _, _ = world.joint_state()
+    names = world.joint_names()
+    return np.array([positions[names.index(n)] for n in LEFT])
+
+
+def left_velocities(world):
+    _, velocities, _ = world.joint_state()
+    names = world.joint_names()
+    return np.array([velocities[names.index(n)] for n in LEFT])
+
+
+def gripper_down(xyz, yaw):
+    """T_base_gripper pointing straight down (hand z = -base z), fingers closing along the yawed base y."""
+    return make_transform(Rotation.from_euler('z', yaw) * Rotation.from_euler('y', np.pi), xyz)
+
+
+def move_gripper(world, kinematics, T, speed_ratio=0.5, timeout=5.0):
+    """Command the IK solution of T and step until the arm is there (within 1 mrad) or the timeout."""
+    q = kinematics.ik(T, seed=left_angles(world))
+    assert q is not None
+    world.command_arm_positions('left', dict(zip(LEFT, q)), speed_ratio)
+    for _ in range(int(timeout / world.time_step)):
+        world.step()
+        if np.max(np.abs(left_angles(world) - q)) < 1e-3:
+            return
+    raise AssertionError('arm did not reach the IK target')
+
+
+def block_mask(image):
+    """Boolean mask of the lit green top face of a block."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    return (hsv[:, :, 0] > 45) & (hsv[:, :, 0] < 75) & (hsv[:, :, 1] > 100) & (hsv[:, :, 2] > 150)
+
+
+# ------------------------------------------------------------------------------------------------ joints
+def test_joint_names_and_start_pose(world):
+    names = world.joint_names()
+    assert len(names) == 19 and names[0] == 'head_pan'
+    assert names[1:3] == ['l_gripper_l_finger_joint', 'l_gripper_r_finger_joint'] and names[3:10] == LEFT
+    positions, velocities, efforts = world.joint_state()
+    assert positions.shape == velocities.shape == efforts.shape == (19,)
+    np.testing.assert_allclose(left_angles(world), list(load_start_poses()['down'].values()), atol=1e-9)
+    world.step(240)   # the start pose holds under gravity
+    np.testing.assert_allclose(left_angles(world), list(load_start_poses()['down'].values()), atol=1e-3)
+
+
+def test_position_command_is_velocity_limited_and_arrives(world):
+    start = left_angles(world)
+    target = start + np.array([0.3, 0.2, -0.3, -0.25, 0.4, 0.3, -0.5])
+    speed_ratio = 0.3
+    world.command_arm_positions('left', dict(zip(LEFT, target)), speed_ratio)
+    peak = np.zeros(7)
+    arrived_at = None
+    for _ in range(int(3.0 / world.time_step)):
+        world.step()
+        peak = np.maximum(peak, np.abs(left_velocities(world)))
+        if arrived_at is None and np.max(np.abs(left_angles(world) - target)) < 0.01:
+            arrived_at = world.time
+    assert arrived_at is not None and arrived_at < 2.0
+    assert np.max(np.abs(left_angles(world) - target)) < 0.01
+    assert np.all(peak <= speed_ratio * VELOCITY_LIMITS * 1.01), peak / (speed_ratio * VELOCITY_LIMITS)
+    assert peak[0] > 0.9 * speed_ratio * VELOCITY_LIMITS[0]   # the slowest-to-arrive joints cruise at the limit
+    assert np.max(np.abs(left_velocities(world))) < 1e-3     # and the arm holds still
+
+
+def test_targets_are_clipped_to_the_joint_limits(world):
+    world.command_arm_positions('left', {'left_e1': -1.0}, 1.0)
+    world.step(480)
+    assert left_angles(world)[3] == pytest.approx(-0.05, abs=1e-3)
+
+
+def test_velocity_mode_then_hold(world):
+    velocities = np.array([0.2, -0.1, 0.0, 0.1, 0.3, -0.2, 0.5])
+    start = left_angles(world)
+    world.command_arm_velocities('left', dict(zip(LEFT, velocities)))
+    world.step(240)
+    np.testing.assert_allclose(left_velocities(world), velocities, atol=2e-3)
+    np.testing.assert_allclose(left_angles(world) - start, velocities * 1.0, atol=0.01)
+    world.command_arm_velocities('left', {'left_s0': 10.0})   # clipped to 1.5 rad/s
+    world.step(24)
+    assert left_velocities(world)[0] == pytest.approx(1.5, abs=0.01)
+    world.hold_arm('left')
+    world.step(12)
+    held = left_angles(world)
+    world.step(240)
+    assert np.max(np.abs(left_angles(world) - held)) < 1e-3
+
+
+def test_velocity_mode_stops_at_the_joint_limits(world):
+    world.command_arm_velocities('left', {'left_e1': -1.5, 'left_w1': 4.0})
+    lowest_e1, highest_w1 = np.inf, -np.inf
+    for _ in range(int(1.5 / world.time_step)):
+        world.step()
+        angles = left_angles(world)
+        lowest_e1, highest_w1 = min(lowest_e1, angles[3]), max(highest_w1, angles[5])
+    assert lowest_e1 > -0.05 - 1e-3 and angles[3] == pytest.approx(-0.05, abs=1e-3)
+    assert highest_w1 < 2.094 + 1e-3 and angles[5] == pytest.approx(2.094, abs=1e-3)
+
+
+def test_link_twist_matches_jacobian(world, kinematics):
+    velocities = np.array([0.1, 0.2, -0.1, 0.2, 0.3, -0.2, 0.4])
+    world.command_arm_velocities('left', dict(zip(LEFT, velocities)))
+    world.step(60)
+    expected = kinematics.jacobian(left_angles(world)) @ left_velocities(world)
+    np.testing.assert_allclose(world.link_twist('left_gripper'), expected, atol=2e-3)
+
+
+# ------------------------------------------------------------------------------------------------ gripper
+def test_block_is_lifted_by_friction(world, kinematics):
+    (block,) = world.object_poses()
+    yaw = Rotation.from_matrix(block[:3, :3]).as_euler('xyz')[2]
+    x, y, top_z = block[0, 3], block[1, 3], world.scene.table.top_z
+    for z in (top_z + 0.10, top_z + 0.05, top_z + 0.008):      # down around the block, fingers open
+        move_gripper(world, kinematics, gripper_down([x, y, z], yaw))
+    assert world.gripper_state('left')['position_percent'] > 95
+    world.command_gripper('left', 0.0, force_percent=40.0, velocity_percent=50.0)
+    world.step(2)
+    assert world.gripper_state('left')['moving']
+    world.step(int(1.5 / world.time_step))
+    state = world.gripper_state('left')
+    assert state['gripping'] and not state['moving'] and not state['missed']
+    gap = 0.016 + 2 * 0.020833 * state['position_percent'] / 100    # between the paddles' inner faces (m)
+    assert gap == pytest.approx(0.04, abs=0.002)                      # stopped on the 40 mm block
+    assert state['force_percent'] == pytest.approx(40.0, abs=4.0)     # squeezing with the commanded force
+    z_before = world.object_poses()[0][2, 3]
+    for z in (top_z + 0.06, top_z + 0.108):
+        move_gripper(world, kinematics, gripper_down([x, y, z], yaw), speed_ratio=0.3)
+    world.step(120)
+    assert world.object_poses()[0][2, 3] - z_before >= 0.09
+    assert world.gripper_state('left')['gripping']
+    world.command_gripper('left', 100.0)                               # let go: it falls back on the table
+    world.step(480)
+    assert world.object_poses()[0][2, 3] == pytest.approx(top_z + 0.02, abs=1e-3)
+    assert not world.gripper_state('left')['gripping']
+
+
+def test_closing_on_nothing_is_missed(world):
+    world.command_gripper('left', 0.0, force_percent=40.0, velocity_percent=100.0)
+    world.step(int(1.0 / world.time_step))
+    state = world.gripper_state('left')
+    assert state['missed'] and not state['gripping'] and not state['moving']
+    assert state['position_percent'] < 2.0
+    world.command_gripper('left', 50.0)
+    world.step(int(1.0 / world.time_step))
+    state = world.gripper_state('left')
+    assert state['position_percent'] == pytest.approx(50.0, abs=1.0) and not state['missed']
+
+
+# ------------------------------------------------------------------------------------------------ sensors
+@pytest.mark.parametrize('start', ['down', 'angled'])
+def test_block_appears_where_the_camera_model_projects_it(camera, start):
+    world = SimWorld(dataclasses.replace(load_scene(), start=start))   # the default scene's block
+    image = world.render_camera('left_hand_camera', camera, np.random.default_rng(0))
+    assert image.shape == (400, 640, 3) and image.dtype == np.uint8
+    T_camera_block = invert(world.link_pose('left_hand_camera')) @ world.object_poses()[0]
+    expected = camera.project(T_camera_block[:3, 3][None])[0]
+    corners = camera.project(transform_points(T_camera_block, model_for('square', 0.04).vertices))
+    assert np.all((corners > 5) & (corners < [camera.width - 5, camera.height - 5]))   # fully in view
+    mask = block_mask(image)
+    rows, columns = np.nonzero(mask)
+    moments = cv2.moments(corners.astype(np.float32))
+    assert mask.sum() == pytest.approx(moments['m00'], rel=0.1)
+    assert np.hypot(columns.mean() - expected[0], rows.mean() - expected[1]) < 2.0
+    # sharper: the mask's centroid is the projected top face's area centroid (perspective moves it off the
+    # projected centre by 0.5 px in the angled view); a half-pixel convention error would show here
+    area_centroid = np.array([moments['m10'], moments['m01']]) / moments['m00']
+    assert np.hypot(columns.mean() - area_centroid[0], rows.mean() - area_centroid[1]) < 0.4
+    # shading: a light table; the sides seen from the angled pose are darker green than the lit top
+    assert np.median(image[~mask]) > 180
+    if start == 'angled':
+        hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+        sides = (hsv[:, :, 0] > 45) & (hsv[:, :, 0] < 75) & (hsv[:, :, 1] > 100) & ~mask
+        assert sides.sum() > 50
+        assert np.median(hsv[:, :, 2][sides]) < 0.8 * np.median(hsv[:, :, 2][mask])
+    world.close()
+
+
+def test_camera_error_moves_the_true_camera(camera):
+    shift, focal_scale = 0.01, 1.05   # m along the published camera's x; true / published focal length
+    masks = []
+    for error in (CameraError(), CameraError(xyz=(shift, 0.0, 0.0)), CameraError(focal_scale=focal_scale)):
+        world = SimWorld(dataclasses.replace(load_scene(), camera_error=error))
+        masks.append(block_mask(world.render_camera('left_hand_camera', camera)))
+        depth = (invert(world.link_pose('left_hand_camera')) @ world.object_poses()[0])[2, 3]
+        world.close()
+    centroids = [np.nonzero(mask)[1].mean() for mask in masks]
+    # the camera moves right, so the block moves left in the image by fx * shift / depth
+    assert centroids[1] - centroids[0] == pytest.approx(-camera.fx * shift / depth, abs=0.5)
+    # a longer true focal length magnifies the block
+    assert masks[2].sum() / masks[0].sum() == pytest.approx(focal_scale ** 2, abs=0.03)
+
+
+def test_range_sensor_reads_the_table_distance(world, kinematics):
+    def expected_distance():
+        T = world.link_pose('left_hand_range')
+        origin, direction = T[:3, 3], T[:3, 0]
+        return (world.scene.table.top_z - origin[2]) / direction[2]
+
+    # in the down start pose the table is ~0.42 m away: beyond the sensor's 0.4 m
+    assert expected_distance() > 0.4 and world.range_at('left_hand_range') == np.inf
+    assert world.range_at('left_hand_range', max_range=1.0) == pytest.approx(expected_distance(), abs=0.005)
+    q = kinematics.ik(gripper_down([0.6, 0.3, -0.05], 0.2), seed=left_angles(world))
+    world.set_arm_positions('left', dict(zip(LEFT, q)))
+    assert 0.1 < expected_distance() < 0.4
+    assert world.range_at('left_hand_range') == pytest.approx(expected_distance(), abs=0.005)
+
+
+# ------------------------------------------------------------------------------------------------ ground truth
+def test_object_poses_and_place_object(world):
+    (T,) = world.object_poses()
+    np.testing.assert_allclose(T[:3, 3], [0.70, 0.25, -0.15 + 0.02], atol=1e-6)
+    assert Rotation.from_matrix(T[:3, :3]).as_euler('xyz') == pytest.approx([0, 0, 0.4], abs=1e-6)
+    world.step(240)                                   # resting on the table: it stays put
+    np.testing.assert_allclose(world.object_poses()[0][:3, 3], [0.70, 0.25, -0.13], atol=1e-4)
+    world.place_object(0, [0.55, -0.1], -0.3)
+    world.step(10)
+    (T,) = world.object_poses()
+    np.testing.assert_allclose(T[:3, 3], [0.55, -0.1, -0.13], atol=1e-4)
+    assert Rotation.from_matrix(T[:3, :3]).as_euler('xyz')[2] == pytest.approx(-0.3, abs=1e-4)

@@ -1,0 +1,771 @@
+"""The thesis colour pipeline (section 3.2, Algorithm 1): BGR image in -> polygon vertices out. No ROS.
+
+Default stages, each a small function below, every parameter in ``config/vision.yaml``:
+
+1. BGR -> HSV (``cv2.cvtColor``).
+2. Gamma correction ``S_out = 255 (S_in / 255) ** gamma`` with gamma = 0.6 (eq. 3.13), as a LUT.
+3. Dynamic saturation threshold ``(S_max - S_min) / epsilon`` with epsilon = 2.25 (eq. 3.14).
+4. Over-saturation: S = 250, V = 180 where the corrected S is at or above the threshold, S = V = 0 below.
+5. Low-pass filter with the kernel of eq. 3.17, ``(1/(2+b)^2) [1 b 1]^T [1 b 1]``, b = 2 (separable).
+6. Colour range (green: H 50-70, S 100-255, V 100-255 on OpenCV's 0-179 hue scale) -> binary mask
+   (on the over-saturated image, as in the thesis).
+7. Morphological opening, then closing.
+8. Laplacian sharpening (kernel ``[-1 -1 -1; -1 8 -1; -1 -1 -1]``), then ``findContours``.
+9. Area threshold; Douglas-Peucker (``approxPolyDP``); merge of vertices closer than a distance
+   (the thesis's "high pass filter" of chapter 6); shape from the vertex count.
+
+Where this departs from the letter of Algorithm 1, and why:
+
+- Gamma is applied to S only. Algorithm 1 also raises H and V to the power gamma, but hue is an angle
+  (a power law moves the colour ranges of step 6 and breaks the red wrap-around), and V is overwritten
+  by the over-saturation of step 4 anyway, so its correction has no effect on the output.
+- The low-pass filter is applied to S and V, not H: averaging hues across an edge, or across the red
+  0/179 wrap-around, makes up hues that are in no range.
+- Eq. 3.17 as transcribed shows a 4-element column ``[1 b b 1]``; its normalisation ``1/(2+b)^2`` only
+  makes sense for ``[1 b 1]^T [1 b 1]``, which is what is used (it sums to 1).
+- The merge distance is a fraction of the polygon's perimeter, not a pixel count: the thesis notes that
+  its fixed-distance filter lowered the height at which a (smaller-looking) square was still found.
+
+Beyond the thesis (all switchable in the YAML):
+
+- Top-face isolation (``isolate_top_face``): in oblique views the side faces (same hue, darker) join
+  the blob and turn a square into a hexagon. Canny edges of V of the original image split the blob
+  into faces; the convex face of largest area x brightness is kept (a side face can be about as bright
+  as the top, so brightness alone, e.g. Otsu on V, is not enough).
+- Coarse corners (``fit_polygon_sides``): lines fitted to the sides of the outline, away from the
+  corners that morphology and the face split round off, intersected.
+- Sub-pixel vertices (``refine_vertices``): each edge is re-measured on the original image along its
+  normal (50 % crossing of the first colour step of each profile), a line is fitted robustly (Huber)
+  to the edge points, and consecutive lines are intersected.
+- A floor under the dynamic threshold (``min_saturation_threshold``) and a zero border for the
+  Laplacian, so a colourless image stays empty and a blob cut by the image border keeps a closed outline.
+- Speed (``roi``): the candidate blobs are found by the same stages on a subsampled image; the full
+  pipeline then runs only in padded regions around them. The dynamic threshold (eq. 3.14) is then taken
+  from the subsampled image's saturation range.
+
+Pixels are (u, v) = (column, row), origin at the centre of the top-left pixel; vertex coordinates are
+in the raw (distorted) image.
+"""
+import dataclasses
+import functools
+import math
+import os
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import yaml
+
+from baxter_pnp.models import SHAPES
+from baxter_pnp.runtime import PACKAGE_ROOT
+
+DEFAULT_VISION_YAML = os.path.join(PACKAGE_ROOT, 'config', 'vision.yaml')
+SHAPE_OF_VERTEX_COUNT = {n: shape for shape, n in SHAPES.items()}
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+LAPLACIAN_KERNEL = np.array([[-1, -1, -1], [-1, 8, -1], [-1, -1, -1]], dtype=np.float32)
+_TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
+
+
+# ================================================================================== configuration
+@dataclass(frozen=True)
+class TopFaceConfig:
+    """Top-face isolation: faces split by the Canny edges of V inside the blob (see ``isolate_top_face``)."""
+    enabled: bool = True
+    blur_sigma_px: float = 1.0
+    canny_low: float = 15.0
+    canny_high: float = 35.0
+    min_face_fraction: float = 0.1
+    min_solidity: float = 0.8
+
+
+@dataclass(frozen=True)
+class SubpixelConfig:
+    """Sub-pixel edge-line refinement of the vertices (see ``refine_vertices``); lengths in pixels."""
+    enabled: bool = True
+    passes: int = 1
+    profile_half_length_px: float = 4.0
+    profile_step_px: float = 0.5
+    profiles_per_edge: int = 16
+    corner_margin_px: float = 1.5
+    min_edge_length_px: float = 4.0
+    min_points: int = 6
+    step_window_px: float = 2.5
+    min_contrast: float = 20.0
+    max_rms_px: float = 0.5
+    max_shift_px: float = 5.0
+
+
+@dataclass(frozen=True)
+class RoiConfig:
+    """Candidate search on an image subsampled by ``downsample``; full pipeline in padded regions."""
+    enabled: bool = True
+    downsample: int = 4
+    padding_px: int = 16
+
+
+@dataclass(frozen=True)
+class VisionConfig:
+    """Parameters of the pipeline; the fields mirror ``config/vision.yaml`` (see its comments).
+
+    ``colours`` maps a colour name to a tuple of inclusive HSV ranges ``((h, s, v) low, (h, s, v) high)``
+    whose masks are OR-ed (red needs two: its hue wraps around 0).
+    """
+    gamma: float = 0.6
+    saturation_epsilon: float = 2.25
+    min_saturation_threshold: float = 30.0
+    oversaturated_s: int = 250
+    oversaturated_v: int = 180
+    lowpass_b: float = 2.0
+    colours: dict = field(default_factory=lambda: {'green': (((50, 100, 100), (70, 255, 255)),)})
+    morphology_kernel_px: int = 3
+    laplacian_sharpening: bool = True
+    min_area_px: float = 100.0
+    approx_epsilon_fraction: float = 0.02
+    merge_distance_fraction: float = 0.05
+    border_margin_px: float = 3.0
+    top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
+    subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
+    roi: RoiConfig = field(default_factory=RoiConfig)
+
+    def __post_init__(self):
+        if not self.gamma > 0:
+            raise ValueError(f'vision config: gamma must be > 0, got {self.gamma}')
+        if not self.saturation_epsilon > 0:
+            raise ValueError(f'vision config: saturation_epsilon must be > 0, got {self.saturation_epsilon}')
+        if not self.lowpass_b >= 0:
+            raise ValueError(f'vision config: lowpass_b must be >= 0, got {self.lowpass_b}')
+        if self.morphology_kernel_px < 1:
+            raise ValueError(f'vision config: morphology_kernel_px must be >= 1, got {self.morphology_kernel_px}')
+        if self.roi.downsample < 1:
+            raise ValueError(f'vision config: roi.downsample must be >= 1, got {self.roi.downsample}')
+        if not self.colours:
+            raise ValueError('vision config: no colours defined')
+        object.__setattr__(self, 'colours', {name: _parse_colour_ranges(name, ranges)
+                                             for name, ranges in self.colours.items()})
+
+    def colour_names(self):
+        """Names of the configured colours, in YAML order."""
+        return list(self.colours)
+
+    @classmethod
+    def from_dict(cls, d):
+        """Config from a dictionary shaped like the YAML; ValueError on an unknown or malformed key."""
+        if not isinstance(d, dict):
+            raise ValueError('vision config: not a mapping')
+        sections = {'top_face': TopFaceConfig, 'subpixel': SubpixelConfig, 'roi': RoiConfig}
+        kwargs = {}
+        for key, value in d.items():
+            if key in sections:
+                kwargs[key] = _dataclass_from_dict(sections[key], value, f'vision config: {key}')
+            else:
+                kwargs[key] = value
+        return _dataclass_from_dict(cls, kwargs, 'vision config')
+
+    @classmethod
+    def from_yaml(cls, path=None):
+        """Config from a YAML file (default ``config/vision.yaml`` of the package)."""
+        path = path or DEFAULT_VISION_YAML
+        with open(path) as f:
+            d = yaml.safe_load(f)
+        try:
+            return cls.from_dict(d)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f'{path}: {error}') from None
+
+
+def _dataclass_from_dict(cls, d, where):
+    """``cls(**d)`` with the keys and the types of the scalar values checked against ``cls()``'s defaults."""
+    if not isinstance(d, dict):
+        raise ValueError(f'{where}: expected a mapping, got {type(d).__name__}')
+    defaults = cls()
+    known = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(known))
+    if unknown:
+        raise ValueError(f'{where}: unknown key(s) {unknown}; known: {known}')
+    kwargs = {}
+    for key, value in d.items():
+        default = getattr(defaults, key)
+        if isinstance(default, bool) and not isinstance(value, bool):
+            raise ValueError(f'{where}: {key} must be true or false, got {value!r}')
+        if isinstance(default, (int, float)) and not isinstance(default, bool):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f'{where}: {key} must be a number, got {value!r}')
+            if isinstance(default, int) and value != int(value):
+                raise ValueError(f'{where}: {key} must be an integer, got {value!r}')
+            value = type(default)(value)
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+def _parse_colour_ranges(name, ranges):
+    """Tuple of ``((h, s, v), (h, s, v))`` integer ranges, or ValueError naming the colour."""
+    try:
+        parsed = tuple((tuple(int(c) for c in low), tuple(int(c) for c in high)) for low, high in ranges)
+    except (TypeError, ValueError):
+        raise ValueError(f'vision config: colour {name!r} must be a list of [[h, s, v], [h, s, v]] ranges, '
+                         f'got {ranges!r}') from None
+    if not parsed:
+        raise ValueError(f'vision config: colour {name!r} has no range')
+    for low, high in parsed:
+        if len(low) != 3 or len(high) != 3:
+            raise ValueError(f'vision config: colour {name!r}: each bound needs 3 values (h, s, v)')
+        if not all(0 <= lo <= hi <= top for lo, hi, top in zip(low, high, (179, 255, 255))):
+            raise ValueError(f'vision config: colour {name!r}: range {low}-{high} must satisfy '
+                             f'0 <= low <= high <= (179, 255, 255)')
+    return parsed
+
+
+# ================================================================================== thesis stages
+@functools.lru_cache(maxsize=8)
+def gamma_lut(gamma):
+    """(256,) uint8 lookup table of ``255 (i / 255) ** gamma`` (eq. 3.13), rounded (cached, read-only)."""
+    lut = np.round(255.0 * (np.arange(256) / 255.0) ** gamma).astype(np.uint8)
+    lut.flags.writeable = False
+    return lut
+
+
+def saturation_threshold(saturation, epsilon, floor=0.0):
+    """Dynamic threshold ``(S_max - S_min) / epsilon`` of a uint8 saturation channel (eq. 3.14), at least ``floor``.
+
+    The floor is ours: in an image without any colour (S_max close to S_min) eq. 3.14 tends to 0 and
+    every pixel, grey background included, would be over-saturated.
+    """
+    s_min, s_max, _, _ = cv2.minMaxLoc(saturation)
+    return max((s_max - s_min) / epsilon, floor)
+
+
+def oversaturate(saturation, threshold, s_value=250, v_value=180):
+    """Algorithm 1, lines 9-16: uint8 ``(S, V)``, ``(s_value, v_value)`` where ``saturation >= threshold``, else 0."""
+    # integer pixels: s >= t  <=>  s > ceil(t) - 1
+    cut = math.ceil(threshold) - 1
+    _, s_out = cv2.threshold(saturation, cut, s_value, cv2.THRESH_BINARY)
+    _, v_out = cv2.threshold(saturation, cut, v_value, cv2.THRESH_BINARY)
+    return s_out, v_out
+
+
+def lowpass_kernel(b):
+    """(3, 3) low-pass kernel of eq. 3.17: ``(1/(2+b)^2) [1 b 1]^T [1 b 1]`` (sums to 1)."""
+    k = lowpass_kernel_1d(b)
+    return np.outer(k, k)
+
+
+def lowpass_kernel_1d(b):
+    """(3,) separable factor ``[1 b 1] / (2 + b)`` of ``lowpass_kernel``."""
+    return np.array([1.0, b, 1.0], dtype=np.float32) / (2.0 + b)
+
+
+def lowpass(channel, b):
+    """``channel`` convolved with the kernel of eq. 3.17 (separably; same size and type, borders reflected)."""
+    k = lowpass_kernel_1d(b)
+    return cv2.sepFilter2D(channel, -1, k, k)
+
+
+def colour_mask(hsv, ranges):
+    """uint8 mask (255 inside) of the pixels of ``hsv`` inside any of the inclusive HSV ``ranges``."""
+    mask = None
+    for low, high in ranges:
+        in_range = cv2.inRange(hsv, low, high)
+        mask = in_range if mask is None else cv2.bitwise_or(mask, in_range)
+    return mask
+
+
+def open_close(mask, kernel_px):
+    """Morphological opening (removes specks) then closing (fills holes) with a square kernel."""
+    kernel = np.ones((kernel_px, kernel_px), np.uint8)
+    return cv2.morphologyEx(cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel), cv2.MORPH_CLOSE, kernel)
+
+
+def laplacian_sharpen(mask):
+    """``mask`` convolved with the Laplacian kernel (uint8, saturated): its inner boundary ring.
+
+    Pixels beyond the image count as background, so the ring of a blob cut by the border stays closed.
+    """
+    return cv2.filter2D(mask, -1, LAPLACIAN_KERNEL, borderType=cv2.BORDER_CONSTANT)
+
+
+def find_blobs(binary, min_area_px):
+    """Outer contours of ``binary`` (``CHAIN_APPROX_NONE``) whose area is at least ``min_area_px``."""
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return [c for c in contours if cv2.contourArea(c) >= min_area_px]
+
+
+def approximate_polygon(contour, epsilon_fraction):
+    """(k, 2) float vertices of the Douglas-Peucker approximation (tolerance = fraction of the perimeter)."""
+    epsilon = epsilon_fraction * cv2.arcLength(contour, True)
+    return cv2.approxPolyDP(contour, epsilon, True).reshape(-1, 2).astype(float)
+
+
+def merge_close_vertices(vertices, min_distance):
+    """Closed polygon (k, 2) with each run of consecutive vertices closer than ``min_distance`` replaced by its mean."""
+    vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    clusters = [[v] for v in vertices]
+    merged = True
+    while merged and len(clusters) > 1:
+        merged = False
+        centres = [np.mean(c, axis=0) for c in clusters]
+        gaps = [np.linalg.norm(centres[i] - centres[(i + 1) % len(centres)]) for i in range(len(centres))]
+        i = int(np.argmin(gaps))
+        if gaps[i] < min_distance:
+            j = (i + 1) % len(clusters)
+            clusters[i] = clusters[i] + clusters[j]
+            del clusters[j]
+            merged = True
+    return np.array([np.mean(c, axis=0) for c in clusters])
+
+
+def fit_polygon_sides(contour, vertices, end_fraction=0.2):
+    """Vertices (k, 2) re-estimated as the intersections of lines fitted to the sides of ``contour``.
+
+    ``vertices`` (k, 2) is a coarse polygon on ``contour`` (e.g. Douglas-Peucker's); each contour
+    point is assigned to its nearest side, the points nearer a side's ends than ``end_fraction`` of
+    its length are dropped (rounded or clipped corners), and a line is fitted to the rest
+    (``cv2.fitLine``, Huber). A vertex whose two lines are missing or nearly parallel is kept.
+    Corrects corners cut off by morphology or by the top-face split by up to several pixels.
+    """
+    vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    points = contour.reshape(-1, 2).astype(float)
+    starts, ends = vertices, np.roll(vertices, -1, axis=0)
+    sides = ends - starts
+    lengths = np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
+    # (points, sides) position along each side (0..1) and distance to it
+    t = np.einsum('pkc,kc->pk', points[:, None, :] - starts[None], sides) / lengths ** 2
+    closest = starts[None] + np.clip(t, 0.0, 1.0)[..., None] * sides[None]
+    nearest = np.argmin(np.linalg.norm(points[:, None, :] - closest, axis=2), axis=1)
+    lines = []
+    for k in range(len(vertices)):
+        tk = t[:, k]
+        chosen = points[(nearest == k) & (tk > end_fraction) & (tk < 1.0 - end_fraction)]
+        if len(chosen) < 3:
+            lines.append(None)
+            continue
+        vx, vy, x, y = cv2.fitLine(chosen.astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+        lines.append((np.array([x, y], dtype=float), np.array([vx, vy], dtype=float)))
+    fitted = vertices.copy()
+    for k in range(len(vertices)):
+        before, after = lines[k - 1], lines[k]
+        corner = None if before is None or after is None else _intersect(before, after)
+        if corner is not None and np.linalg.norm(corner - vertices[k]) < 0.5 * min(lengths[k - 1], lengths[k]):
+            fitted[k] = corner
+    return fitted
+
+
+def classify_shape(vertex_count):
+    """Shape name of a polygon with ``vertex_count`` vertices (3 triangle .. 6 hexagon), else None."""
+    return SHAPE_OF_VERTEX_COUNT.get(int(vertex_count))
+
+
+def order_vertices(vertices):
+    """Vertices sorted by increasing ``atan2(v - vc, u - uc)`` about their mean (clockwise on screen)."""
+    vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    centre = vertices.mean(axis=0)
+    angles = np.arctan2(vertices[:, 1] - centre[1], vertices[:, 0] - centre[0])
+    return vertices[np.argsort(angles, kind='stable')]
+
+
+# ================================================================================== beyond the thesis
+def isolate_top_face(blob_mask, value, config):
+    """Mask of the block's top face inside ``blob_mask`` (uint8, 255 inside), or None if none is found.
+
+    The faces of a block are regions of uniform colour separated by straight edges. ``value`` (V of
+    the original image, uint8) is smoothed (``blur_sigma_px``) and its edges are found with Canny
+    (hysteresis ``canny_low`` / ``canny_high``); the blob minus the (dilated) edges falls apart into
+    faces. The top face is the convex face (solidity >= ``min_solidity``; two side faces of equal
+    shade merge into a non-convex chevron) of largest area x mean V: under light from above the
+    table it is the brightest face, and in views up to ~60 deg from its normal the largest. The face
+    is grown back over the edge band, within the blob. When it covers nearly all the blob (all but
+    ``min_face_fraction``), the blob itself is returned.
+    """
+    x, y, w, h = cv2.boundingRect(blob_mask)
+    box = (slice(y, y + h), slice(x, x + w))
+    blob = blob_mask[box]
+    smoothed = cv2.GaussianBlur(value[box], (0, 0), config.blur_sigma_px)
+    edges = cv2.dilate(cv2.Canny(smoothed, config.canny_low, config.canny_high, L2gradient=True), _CROSS)
+    faces = cv2.bitwise_and(blob, cv2.bitwise_not(edges))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(faces, connectivity=4)
+    blob_area = cv2.countNonZero(blob)
+    best, best_score = None, 0.0
+    for label in range(1, count):
+        area = stats[label, cv2.CC_STAT_AREA]
+        if area < config.min_face_fraction * blob_area:
+            continue
+        face = np.where(labels == label, np.uint8(255), np.uint8(0))
+        contours, _ = cv2.findContours(face, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        outline = max(contours, key=cv2.contourArea)
+        if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
+            continue
+        score = area * cv2.mean(smoothed, face)[0]
+        if score > best_score:
+            best, best_score = face, score
+    if best is None:
+        return None
+    if cv2.countNonZero(best) >= (1.0 - config.min_face_fraction) * blob_area:
+        return blob_mask
+    top = np.zeros_like(blob_mask)
+    top[box] = cv2.bitwise_and(cv2.dilate(best, _CROSS, iterations=2), blob)
+    return top
+
+
+def refine_vertices(image_bgr, coarse_px, config):
+    """Sub-pixel vertices of the polygon ``coarse_px`` (n, 2) seen in ``image_bgr`` (the original image).
+
+    Along each edge, ``profiles_per_edge`` colour profiles are sampled (bilinearly) along the edge
+    normal, ``+- profile_half_length_px`` about the current edge, spread evenly but not near the
+    corners (where a profile would reach the next edge). The edge point of a profile is the 50 %
+    crossing of its first colour step (``_first_step_crossings``). A line is fitted to the points
+    (``cv2.fitLine``, Huber) and consecutive lines are intersected. This is repeated ``passes`` times,
+    each pass sampling about the previous pass's polygon (the first pass corrects coarse corners that
+    are pixels off; the next one measures with centred profiles). A vertex keeps its coarse position
+    when either adjacent line failed (fewer than ``min_points`` edge points, contrast below
+    ``min_contrast``, RMS above ``max_rms_px``), the lines are nearly parallel, or the intersection is
+    more than ``max_shift_px`` from the coarse vertex.
+
+    Returns ``(vertices (n, 2), rms_px, fallback_count)`` of the last pass: ``rms_px`` is the RMS
+    distance of the edge points to their lines over the fitted edges (NaN if none).
+    """
+    coarse = np.asarray(coarse_px, dtype=float).reshape(-1, 2)
+    r, step = config.profile_half_length_px, config.profile_step_px
+    offsets = np.arange(-r, r + 0.5 * step, step)
+    vertices = coarse
+    for _ in range(config.passes):
+        samples, points, normals, usable = _sample_edge_profiles(image_bgr, vertices, offsets, config)
+        crossings, contrasts = _first_step_crossings(samples, offsets, config.step_window_px)
+        lines, squared_residuals = [], []
+        for k in range(len(coarse)):
+            good = np.isfinite(crossings[k])
+            line = None
+            if usable[k] and good.sum() >= config.min_points and contrasts[k] >= config.min_contrast:
+                edge_points = (points[k, good] + crossings[k, good, None] * normals[k]).astype(np.float32)
+                vx, vy, x, y = cv2.fitLine(edge_points, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+                residuals = (edge_points - [x, y]) @ np.array([-vy, vx])
+                if np.sqrt(np.mean(residuals ** 2)) <= config.max_rms_px:
+                    line = (np.array([x, y], dtype=float), np.array([vx, vy], dtype=float))
+                    squared_residuals.append(residuals ** 2)
+            lines.append(line)
+        refined, fallbacks = coarse.copy(), 0
+        for k in range(len(coarse)):
+            before, after = lines[k - 1], lines[k]       # edge k-1 ends at vertex k, edge k starts there
+            corner = None if before is None or after is None else _intersect(before, after)
+            if corner is None or np.linalg.norm(corner - coarse[k]) > config.max_shift_px:
+                fallbacks += 1
+            else:
+                refined[k] = corner
+        vertices = refined
+    rms = float(np.sqrt(np.mean(np.concatenate(squared_residuals)))) if squared_residuals else float('nan')
+    return vertices, rms, fallbacks
+
+
+def _sample_edge_profiles(image_bgr, polygon, offsets, config):
+    """Colour profiles across the edges of ``polygon`` (n, 2); edge k runs from vertex k to k+1.
+
+    Returns ``samples (n, M, K, 3)`` float32 (M = ``profiles_per_edge`` profiles of K = len(offsets)
+    samples, from inside to outside), their centre ``points (n, M, 2)`` on the edge, the outward unit
+    ``normals (n, 2)`` and ``usable (n,)`` (False for an edge too short to hold the profiles clear of
+    its corners). All profiles come from one ``cv2.remap`` of a float32 crop around the polygon.
+    """
+    n, m = len(polygon), config.profiles_per_edge
+    starts, ends = polygon, np.roll(polygon, -1, axis=0)
+    lengths = np.maximum(np.linalg.norm(ends - starts, axis=1), 1e-9)
+    directions = (ends - starts) / lengths[:, None]
+    area2 = np.sum(starts[:, 0] * ends[:, 1] - ends[:, 0] * starts[:, 1])
+    normals = np.sign(area2 or 1.0) * np.column_stack([directions[:, 1], -directions[:, 0]])
+    # keep profiles away from the corners: reach / sin(corner angle) plus a margin
+    sines = np.abs(np.cross(-np.roll(directions, 1, axis=0), directions))
+    margins = config.corner_margin_px + offsets[-1] / np.maximum(sines, 0.3)
+    first, last = margins, lengths - np.roll(margins, -1)
+    usable = last - first >= config.min_edge_length_px
+    t = first[:, None] + (last - first)[:, None] * (np.arange(m) + 0.5) / m
+    points = starts[:, None, :] + t[..., None] * directions[:, None, :]
+    coords = points[:, :, None, :] + offsets[None, None, :, None] * normals[:, None, None, :]
+    h, w = image_bgr.shape[:2]
+    x0, y0 = np.clip(np.floor(coords.reshape(-1, 2).min(axis=0)).astype(int) - 1, 0, [w - 1, h - 1])
+    x1, y1 = np.clip(np.ceil(coords.reshape(-1, 2).max(axis=0)).astype(int) + 2, [x0 + 1, y0 + 1], [w, h])
+    crop = image_bgr[y0:y1, x0:x1].astype(np.float32)
+    k = len(offsets)
+    map_x = (coords[..., 0] - x0).astype(np.float32).reshape(n * m, k)
+    map_y = (coords[..., 1] - y0).astype(np.float32).reshape(n * m, k)
+    samples = cv2.remap(crop, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return samples.reshape(n, m, k, 3), points, normals, usable
+
+
+def _first_step_crossings(samples, offsets, window_px):
+    """Offsets of the first colour step of each profile, and each edge's step contrast.
+
+    ``samples`` (E, M, K, 3): colours along M profiles of each of E edges, from inside (offset
+    ``offsets[0]``) to outside. The step of a profile is the first local maximum of its colour
+    gradient norm that reaches 5 % of the profile's largest and 3 times the edge's noise (median
+    gradient near the inside ends): the first, not the strongest, so that a thin darker side face
+    between the top face and the table does not pull the edge outwards. An edge's inside colour is
+    the median of its profiles' first samples, its outside colour the median of the colours
+    ``window_px`` beyond each step, or at the first gradient valley after it if sooner (a side face
+    thinner than the window). Each profile, projected on their difference, gives the edge point as its
+    0.5 crossing (linearly interpolated) nearest the step, if within 1 px of it.
+    Returns ``(offsets (E, M), NaN where none; contrasts (E,))``.
+    """
+    e, m, k = samples.shape[:3]
+    step = offsets[1] - offsets[0]
+    index = np.arange(k)
+    gradient = np.zeros((e, m, k), np.float32)
+    change = samples[:, :, 2:] - samples[:, :, :-2]
+    gradient[..., 1:-1] = np.sqrt(np.einsum('emkc,emkc->emk', change, change))
+    noise = np.median(gradient[..., 1:3].reshape(e, -1), axis=1)[:, None, None]
+    floor = np.maximum(0.05 * gradient.max(axis=2, keepdims=True), 3.0 * noise + 1.0)
+    local_max = np.zeros((e, m, k), bool)
+    local_max[..., 1:-1] = (gradient[..., 1:-1] >= gradient[..., :-2]) & (gradient[..., 1:-1] >= gradient[..., 2:])
+    peak = local_max & (gradient >= floor)
+    found = peak.any(axis=2)
+    j = np.argmax(peak, axis=2)                                          # (E, M) first step
+    valley = np.zeros((e, m, k), bool)
+    valley[..., 1:-1] = (gradient[..., 1:-1] <= gradient[..., :-2]) & (gradient[..., 1:-1] < gradient[..., 2:])
+    valley &= index > j[..., None]
+    valley[..., -1] = True
+    beyond = np.minimum(j + int(round(window_px / step)), np.argmax(valley, axis=2))
+    inside = np.median(samples[:, :, :2].mean(axis=2), axis=1)           # (E, 3)
+    outside_each = np.take_along_axis(samples, beyond[..., None, None], axis=2)[:, :, 0]
+    outside = np.array([np.median(outside_each[edge, found[edge]], axis=0) if found[edge].any() else inside[edge]
+                        for edge in range(e)])                            # (E, 3)
+    difference = outside - inside
+    contrasts = np.sqrt(np.einsum('ec,ec->e', difference, difference))
+    q = np.einsum('emkc,ec->emk', samples - inside[:, None, None], difference)
+    q /= np.maximum(contrasts ** 2, 1e-9)[:, None, None]
+    above = q >= 0.5
+    rises = ~above[..., :-1] & above[..., 1:]
+    distance = np.abs(index[:-1] + 0.5 - j[..., None])
+    i = np.argmin(np.where(rises, distance, np.inf), axis=2)[..., None]
+    q0 = np.take_along_axis(q, i, axis=2)[..., 0]
+    q1 = np.take_along_axis(q, i + 1, axis=2)[..., 0]
+    crossing = offsets[i[..., 0]] + step * (0.5 - q0) / np.where(q1 > q0, q1 - q0, 1.0)
+    valid = found & rises.any(axis=2) & (np.abs(crossing - offsets[j]) <= 1.0)
+    return np.where(valid, crossing, np.nan), contrasts
+
+
+def _intersect(line_a, line_b):
+    """Intersection (2,) of two ``(point, direction)`` lines, or None if they are within ~10 deg of parallel."""
+    (pa, da), (pb, db) = line_a, line_b
+    cross = da[0] * db[1] - da[1] * db[0]
+    if abs(cross) < 0.17:
+        return None
+    t = ((pb[0] - pa[0]) * db[1] - (pb[1] - pa[1]) * db[0]) / cross
+    return pa + t * da
+
+
+# ================================================================================== detection
+@dataclass
+class Detection:
+    """A polygon of one colour found in the image (pixels of the raw, distorted image).
+
+    ``vertices_px`` (n, 2) ordered by increasing ``atan2(v - vc, u - uc)``; ``centroid_px`` (2,) and
+    ``area_px`` (px^2) of that polygon; ``quality`` in 0..1 (1 = clean, convex polygon whose edges fit
+    straight lines); ``touches_border``: a vertex within ``border_margin_px`` of the image border;
+    ``contour`` (M, 1, 2) int32: the outline used (the top face), for drawing.
+    """
+    shape: str
+    colour: str
+    vertices_px: np.ndarray
+    centroid_px: np.ndarray
+    area_px: float
+    quality: float
+    touches_border: bool
+    contour: np.ndarray
+
+
+def validate_image(image_bgr):
+    """``image_bgr`` if it is a non-empty uint8 (H, W, 3) array, else ValueError saying what is wrong.
+
+    Single-channel (mono8) images are rejected, not converted: the pipeline segments by hue, so a grey
+    image can never contain a detection and accepting it would hide a wrong topic or encoding.
+    """
+    if not isinstance(image_bgr, np.ndarray):
+        raise ValueError(f'detect: expected a numpy array, got {type(image_bgr).__name__}')
+    if image_bgr.dtype != np.uint8:
+        raise ValueError(f'detect: expected a uint8 image, got dtype {image_bgr.dtype}')
+    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
+        raise ValueError(f'detect: expected a BGR image of shape (H, W, 3), got shape {image_bgr.shape}'
+                         + ('; mono8 images are not accepted (the pipeline segments by colour)'
+                            if image_bgr.ndim == 2 else ''))
+    if image_bgr.shape[0] == 0 or image_bgr.shape[1] == 0:
+        raise ValueError(f'detect: empty image of shape {image_bgr.shape}')
+    return image_bgr
+
+
+def detect(image_bgr, config, colours=None, shapes=None):
+    """Polygons of the configured colours in a BGR uint8 image, largest first.
+
+    ``colours`` / ``shapes``: names to look for (None = every configured colour / every shape of
+    ``models.SHAPES``); unknown names raise ValueError, as does a bad image (``validate_image``).
+    """
+    image_bgr = validate_image(image_bgr)
+    colours = config.colour_names() if colours is None else list(colours)
+    unknown = [c for c in colours if c not in config.colours]
+    if unknown:
+        raise ValueError(f'detect: unknown colour(s) {unknown}; configured: {config.colour_names()}')
+    shapes = set(SHAPES) if shapes is None else set(shapes)
+    if not shapes <= set(SHAPES):
+        raise ValueError(f'detect: unknown shape(s) {sorted(shapes - set(SHAPES))}; known: {sorted(SHAPES)}')
+    ranges = {name: config.colours[name] for name in colours}
+    if config.roi.enabled:
+        threshold, regions = _candidate_regions(image_bgr, ranges, config)
+    else:
+        hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+        threshold = _dynamic_threshold(hsv, config)
+        regions = [(0, 0, image_bgr.shape[1], image_bgr.shape[0])]
+    detections = []
+    for region in regions:
+        detections.extend(_detect_in_region(image_bgr, region, threshold, ranges, shapes, config))
+    detections.sort(key=lambda d: -d.area_px)
+    return detections
+
+
+def _dynamic_threshold(hsv, config):
+    """Eq. 3.14 on the gamma-corrected saturation of ``hsv``, floored at ``min_saturation_threshold``."""
+    return saturation_threshold(cv2.LUT(hsv[..., 1], gamma_lut(config.gamma)), config.saturation_epsilon,
+                                config.min_saturation_threshold)
+
+
+def _oversaturated_hsv(hsv, threshold, config):
+    """Algorithm 1 on an HSV image with a given dynamic threshold: HSV with over-saturated, low-passed S and V."""
+    saturation = cv2.LUT(hsv[..., 1], gamma_lut(config.gamma))
+    s_out, v_out = oversaturate(saturation, threshold, config.oversaturated_s, config.oversaturated_v)
+    return cv2.merge([hsv[..., 0], lowpass(s_out, config.lowpass_b), lowpass(v_out, config.lowpass_b)])
+
+
+def _candidate_regions(image_bgr, ranges, config):
+    """``(threshold, regions)``: eq. 3.14's threshold and padded ``(x0, y0, x1, y1)`` boxes around blobs.
+
+    Runs stages 1-6 on the image subsampled by ``roi.downsample`` (nearest pixel); overlapping boxes
+    are merged so that every blob lies whole inside exactly one region.
+    """
+    f = config.roi.downsample
+    h, w = image_bgr.shape[:2]
+    small = cv2.resize(image_bgr, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_NEAREST)
+    hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
+    threshold = _dynamic_threshold(hsv, config)
+    oversaturated = _oversaturated_hsv(hsv, threshold, config)
+    mask = None
+    for colour_ranges in ranges.values():
+        m = colour_mask(oversaturated, colour_ranges)
+        mask = m if mask is None else cv2.bitwise_or(mask, m)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    pad = config.roi.padding_px
+    boxes = []
+    for x, y, bw, bh, area in stats[1:]:
+        if area * f * f < 0.25 * config.min_area_px:
+            continue
+        boxes.append([max(0, x * f - pad), max(0, y * f - pad), min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)])
+    return threshold, _merge_boxes(boxes)
+
+
+def _merge_boxes(boxes):
+    """Union of overlapping ``[x0, y0, x1, y1]`` boxes until none overlap."""
+    boxes = [list(b) for b in boxes]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                a, b = boxes[i], boxes[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    boxes[i] = [min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])]
+                    del boxes[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return [tuple(b) for b in boxes]
+
+
+def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
+    """Detections whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
+    x0, y0, x1, y1 = region
+    hsv = cv2.cvtColor(image_bgr[y0:y1, x0:x1], cv2.COLOR_BGR2HSV)
+    oversaturated = _oversaturated_hsv(hsv, threshold, config)
+    offset = np.array([x0, y0])
+    detections = []
+    for colour, colour_ranges in ranges.items():
+        mask = colour_mask(oversaturated, colour_ranges)
+        if not cv2.countNonZero(mask):
+            continue
+        mask = open_close(mask, config.morphology_kernel_px)
+        binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
+        for blob in find_blobs(binary, config.min_area_px):
+            detection = _polygon_detection(image_bgr, hsv[..., 2], blob, offset, colour, config)
+            if detection is not None and detection.shape in shapes:
+                detections.append(detection)
+    return detections
+
+
+def _polygon_detection(image_bgr, value, blob, offset, colour, config):
+    """Detection of one blob (contour in region coordinates, ``offset`` = region origin), or None.
+
+    ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)).
+    """
+    outline = blob
+    if config.top_face.enabled:
+        blob_mask = np.zeros(value.shape, np.uint8)
+        cv2.drawContours(blob_mask, [blob], -1, 255, cv2.FILLED)
+        top = isolate_top_face(blob_mask, value, config.top_face)
+        if top is None:
+            return None
+        if top is not blob_mask:
+            faces = find_blobs(top, config.min_area_px)
+            if not faces:
+                return None
+            outline = max(faces, key=cv2.contourArea)
+    hull = cv2.convexHull(outline)
+    coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
+    coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
+    shape = classify_shape(len(coarse))
+    if shape is None:
+        return None
+    coarse = fit_polygon_sides(outline, coarse)
+    coarse = coarse + offset
+    solidity = cv2.contourArea(outline) / max(cv2.contourArea(hull), 1e-9)
+    if config.subpixel.enabled:
+        vertices, rms, fallbacks = refine_vertices(image_bgr, coarse, config.subpixel)
+        fit = math.exp(-rms / config.subpixel.max_rms_px) if np.isfinite(rms) else 0.5
+        quality = solidity * fit * (1.0 - 0.5 * fallbacks / len(coarse))
+    else:
+        vertices, quality = coarse, solidity
+    vertices = order_vertices(vertices)
+    moments = cv2.moments(vertices.astype(np.float32))
+    if moments['m00'] <= 0:
+        return None
+    h, w = image_bgr.shape[:2]
+    margin = config.border_margin_px
+    touches = bool(np.any((vertices < margin) | (vertices > np.array([w - 1, h - 1]) - margin)))
+    return Detection(shape=shape, colour=colour, vertices_px=vertices,
+                     centroid_px=np.array([moments['m10'], moments['m01']]) / moments['m00'],
+                     area_px=float(moments['m00']), quality=float(np.clip(quality, 0.0, 1.0)),
+                     touches_border=touches, contour=(outline + offset).astype(np.int32))
+
+
+def select_target(detections, shape, colour, image_size):
+    """The detection to servo to: of ``shape`` and ``colour`` (None = any), the largest; ties -> most central.
+
+    Areas within 2 % of the largest count as a tie, broken by the distance of the centroid to the
+    centre of the image of ``image_size`` = (width, height) pixels. None if nothing matches.
+    """
+    candidates = [d for d in detections
+                  if (shape is None or d.shape == shape) and (colour is None or d.colour == colour)]
+    if not candidates:
+        return None
+    largest = max(d.area_px for d in candidates)
+    tied = [d for d in candidates if d.area_px >= (1.0 - _TIE_AREA_FRACTION) * largest]
+    centre = (np.asarray(image_size, dtype=float) - 1.0) / 2.0
+    return min(tied, key=lambda d: float(np.linalg.norm(d.centroid_px - centre)))
+
+
+def draw_detections(image_bgr, detections):
+    """Copy of ``image_bgr`` with each detection's contour, numbered vertices and ``shape colour`` label."""
+    canvas = image_bgr.copy()
+    for detection in detections:
+        cv2.drawContours(canvas, [detection.contour], -1, (255, 0, 255), 1, cv2.LINE_AA)
+        polygon = np.round(detection.vertices_px * 16).astype(np.int32)   # 4 fractional bits
+        cv2.polylines(canvas, [polygon], True, (0, 0, 255), 1, cv2.LINE_AA, shift=4)
+        for k, (u, v) in enumerate(detection.vertices_px):
+            cv2.circle(canvas, (int(round(u * 16)), int(round(v * 16))), 3 * 16, (0, 0, 255), 1, cv2.LINE_AA, shift=4)
+            cv2.putText(canvas, str(k), (int(round(u)) + 4, int(round(v)) - 4), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.4, (0, 0, 255), 1, cv2.LINE_AA)
+        u, v = (int(round(c)) for c in detection.centroid_px)
+        cv2.putText(canvas, f'{detection.shape} {detection.colour}', (u - 30, v), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas

@@ -1,0 +1,287 @@
+"""vision: the thesis stages one by one, shape classification, top-face isolation and sub-pixel
+vertex accuracy on rendered images (synthetic.render_block_scene), bad inputs, target selection."""
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from baxter_pnp import synthetic, vision
+from baxter_pnp.camera import load_default_camera
+from baxter_pnp.transforms import make_transform
+
+GREEN = (40, 170, 40)
+COLOURS_BGR = {'green': GREEN, 'red': (40, 40, 200), 'blue': (200, 70, 30), 'yellow': (30, 200, 220)}
+
+
+@pytest.fixture(scope='module')
+def camera():
+    return load_default_camera()
+
+
+@pytest.fixture(scope='module')
+def config():
+    return vision.VisionConfig.from_yaml()
+
+
+def block_pose(camera, pixel, distance, tilt_deg=0.0, tilt_azimuth_deg=0.0, yaw_deg=0.0):
+    """T_camera_block: top-face centre at ``distance`` (m) along the ray of ``pixel``, tilted from facing the camera."""
+    ray = np.append(camera.undistort_points(np.array([pixel], dtype=float))[0], 1.0)
+    azimuth = np.radians(tilt_azimuth_deg)
+    tilt = Rotation.from_rotvec(np.radians(tilt_deg) * np.array([np.cos(azimuth), np.sin(azimuth), 0.0]))
+    rotation = tilt * Rotation.from_rotvec([np.pi, 0.0, 0.0]) * Rotation.from_rotvec([0.0, 0.0, np.radians(yaw_deg)])
+    return make_transform(rotation, ray / np.linalg.norm(ray) * distance)
+
+
+def vertex_errors(detected, truth):
+    """Per-vertex distances (px) under the best cyclic correspondence (either direction)."""
+    n = len(truth)
+    assert len(detected) == n, f'{len(detected)} vertices detected, {n} expected'
+    candidates = []
+    for shift in range(n):
+        for sign in (1, -1):
+            candidates.append(np.linalg.norm(detected[[(sign * k + shift) % n for k in range(n)]] - truth, axis=1))
+    return min(candidates, key=lambda e: e.max())
+
+
+# ----------------------------------------------------------------------------------------- config
+def test_default_config_is_the_thesis_pipeline(config):
+    assert config.gamma == 0.6 and config.saturation_epsilon == 2.25 and config.lowpass_b == 2.0
+    assert (config.oversaturated_s, config.oversaturated_v) == (250, 180)
+    assert config.colours['green'] == (((50, 100, 100), (70, 255, 255)),)
+    assert len(config.colours['red']) == 2                         # hue wraps around 0
+    assert {'green', 'red', 'blue', 'yellow'} <= set(config.colour_names())
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'gamma_typo': 0.6}, 'unknown key'),
+    ({'gamma': 'high'}, 'must be a number'),
+    ({'colours': {'green': [[[50, 100], [70, 255, 255]]]}}, 'green'),
+    ({'colours': {'red': [[[10, 100, 100], [5, 255, 255]]]}}, 'red'),
+    ({'subpixel': {'enabled': 'yes'}}, 'true or false'),
+])
+def test_config_errors_name_the_bad_key(tmp_path, change, message):
+    path = tmp_path / 'vision.yaml'
+    path.write_text(yaml.safe_dump(change))
+    with pytest.raises(ValueError, match=message):
+        vision.VisionConfig.from_yaml(str(path))
+
+
+# ----------------------------------------------------------------------------------------- stages
+def test_gamma_lut_values():
+    lut = vision.gamma_lut(0.6)
+    assert lut.dtype == np.uint8 and lut.shape == (256,)
+    assert lut[0] == 0 and lut[255] == 255
+    assert lut[64] == round(255 * (64 / 255) ** 0.6) == 111
+    assert np.all(np.diff(lut.astype(int)) >= 0) and np.all(lut[1:250] > np.arange(1, 250))   # brightens
+
+
+def test_dynamic_saturation_threshold_and_oversaturation():
+    saturation = np.array([[10, 50, 99], [100, 101, 235]], np.uint8)
+    threshold = vision.saturation_threshold(saturation, 2.25)
+    assert threshold == pytest.approx((235 - 10) / 2.25) == 100.0
+    s_out, v_out = vision.oversaturate(saturation, threshold, 250, 180)
+    np.testing.assert_array_equal(s_out, [[0, 0, 0], [250, 250, 250]])       # s >= threshold is kept
+    np.testing.assert_array_equal(v_out, [[0, 0, 0], [180, 180, 180]])
+    s_out, _ = vision.oversaturate(saturation, 100.5, 250, 180)
+    np.testing.assert_array_equal(s_out, [[0, 0, 0], [0, 250, 250]])
+
+
+def test_lowpass_kernel_of_eq_3_17():
+    kernel = vision.lowpass_kernel(2.0)
+    np.testing.assert_allclose(kernel, np.outer([1, 2, 1], [1, 2, 1]) / 16.0)
+    assert kernel.sum() == pytest.approx(1.0)
+    assert vision.lowpass_kernel(5.0).sum() == pytest.approx(1.0)
+    impulse = np.zeros((7, 7), np.float32)
+    impulse[3, 3] = 1.0
+    np.testing.assert_allclose(vision.lowpass(impulse, 2.0)[2:5, 2:5], kernel, atol=1e-7)
+
+
+def test_colour_masks_of_named_colours(config):
+    hues = {'green': 60, 'red': 2, 'blue': 115, 'yellow': 28}
+    for name, hue in hues.items():
+        hsv = np.array([[[hue, 250, 180], [hue, 250, 60], [(hue + 90) % 180, 250, 180]]], np.uint8)
+        mask = vision.colour_mask(hsv, config.colours[name])
+        np.testing.assert_array_equal(mask[0], [255, 0, 0], err_msg=name)   # bright in range / too dark / wrong hue
+    hsv = np.array([[[178, 250, 180], [5, 250, 180], [90, 250, 180]]], np.uint8)
+    red = vision.colour_mask(hsv, config.colours['red'])
+    np.testing.assert_array_equal(red[0], [255, 255, 0])                     # both sides of the wrap-around
+
+
+def test_laplacian_and_morphology_stages():
+    mask = np.zeros((20, 20), np.uint8)
+    mask[5:15, 5:15] = 255
+    mask[2, 2] = 255                                                         # a speck
+    mask[9, 9] = 0                                                           # a hole
+    cleaned = vision.open_close(mask, 3)
+    assert cleaned[2, 2] == 0 and cleaned[9, 9] == 255
+    ring = vision.laplacian_sharpen(cleaned)
+    assert ring[5, 9] == 255 and ring[9, 9] == 0 and ring[4, 9] == 0      # inner boundary only
+    blobs = vision.find_blobs(ring, 50)
+    assert len(blobs) == 1 and cv2.contourArea(blobs[0]) == pytest.approx(81)
+
+
+def test_merge_close_vertices():
+    square = np.array([[0, 0], [100, 0], [101, 1], [100, 100], [0, 100]], float)
+    merged = vision.merge_close_vertices(square, 5.0)
+    np.testing.assert_allclose(merged, [[0, 0], [100.5, 0.5], [100, 100], [0, 100]])
+    wrapped = vision.merge_close_vertices(np.array([[1, 1], [100, 0], [100, 100], [0, 0]], float), 5.0)
+    assert len(wrapped) == 3                                                 # first and last are neighbours
+    assert len(vision.merge_close_vertices(square, 0.5)) == 5
+
+
+def test_vertex_order_and_classification():
+    rng = np.random.default_rng(0)
+    polygon = np.array([[10, 0], [0, 10], [-10, 0], [0, -10]], float) + [50, 60]
+    ordered = vision.order_vertices(polygon[rng.permutation(4)])
+    angles = np.arctan2(ordered[:, 1] - 60, ordered[:, 0] - 50)
+    assert np.all(np.diff(angles) > 0)
+    assert [vision.classify_shape(n) for n in range(2, 8)] == [None, 'triangle', 'square', 'pentagon', 'hexagon', None]
+
+
+# ----------------------------------------------------------------------------------------- rendered images
+@pytest.mark.parametrize('shape', ['triangle', 'square', 'pentagon', 'hexagon'])
+def test_shapes_are_classified_from_rendered_images(camera, config, shape):
+    rng = np.random.default_rng(7)
+    spec = synthetic.BlockSpec(shape, 0.04, 0.02, GREEN)
+    for pixel, tilt in [((320, 240), 5.0), ((200, 300), 20.0)]:
+        T = block_pose(camera, pixel, 0.25, tilt, 40.0, 17.0)
+        image, truths = synthetic.render_block_scene(camera, [(spec, T)], rng)
+        detections = vision.detect(image, config)
+        assert [d.shape for d in detections] == [shape]
+        assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).max() < 1.0
+
+
+def test_top_face_isolation_at_30_degrees(camera, config):
+    spec = synthetic.BlockSpec('square', 0.04, 0.02, GREEN)
+    T = block_pose(camera, (330, 250), 0.20, tilt_deg=30.0, tilt_azimuth_deg=-60.0, yaw_deg=30.0)
+    image, truths = synthetic.render_block_scene(camera, [(spec, T)], np.random.default_rng(3))
+    detections = vision.detect(image, config)
+    assert len(detections) == 1 and len(detections[0].vertices_px) == 4
+    assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).max() < 0.5
+    # the thesis pipeline alone sees the side faces as part of the square
+    plain = dataclasses.replace(config, top_face=dataclasses.replace(config.top_face, enabled=False))
+    assert [len(d.vertices_px) for d in vision.detect(image, plain)] != [4]
+
+
+def test_subpixel_vertex_accuracy_on_random_views(camera, config):
+    """40 mm squares, 0.10-0.40 m, tilt up to 35 deg, the renderer's default noise, blur and JPEG."""
+    rng = np.random.default_rng(11)
+    spec = synthetic.BlockSpec('square', 0.04, 0.02, GREEN)
+    coarse = dataclasses.replace(config, subpixel=dataclasses.replace(config.subpixel, enabled=False))
+    errors, coarse_errors, missed = [], [], 0
+    for _ in range(30):
+        T = synthetic.random_block_pose(rng, (0.10, 0.40), 35.0, camera, block=spec)
+        image, truths = synthetic.render_block_scene(camera, [(spec, T)], rng)
+        squares = vision.detect(image, config, shapes=['square'])
+        if not squares:
+            missed += 1
+            continue
+        errors.extend(vertex_errors(squares[0].vertices_px, truths[0]['vertices_px']))
+        without = vision.detect(image, coarse, shapes=['square'])
+        if without:
+            coarse_errors.extend(vertex_errors(without[0].vertices_px, truths[0]['vertices_px']))
+    errors = np.array(errors)
+    assert missed <= 1
+    assert np.median(errors) <= 0.15
+    assert np.percentile(errors, 90) <= 0.6
+    assert np.median(coarse_errors) > 3 * np.median(errors)             # the refinement is what gets there
+
+
+def test_roi_search_gives_the_full_frame_result(camera, config):
+    rng = np.random.default_rng(5)
+    blocks = [(synthetic.BlockSpec('square', 0.04, 0.02, GREEN), block_pose(camera, (200, 200), 0.3, 10.0)),
+              (synthetic.BlockSpec('triangle', 0.04, 0.02, COLOURS_BGR['red']), block_pose(camera, (450, 300), 0.3))]
+    image, _ = synthetic.render_block_scene(camera, blocks, rng)
+    full = dataclasses.replace(config, roi=dataclasses.replace(config.roi, enabled=False))
+    with_roi, without = vision.detect(image, config), vision.detect(image, full)
+    assert [(d.shape, d.colour) for d in with_roi] == [(d.shape, d.colour) for d in without] \
+        == [('square', 'green'), ('triangle', 'red')]
+    for a, b in zip(with_roi, without):
+        np.testing.assert_allclose(a.vertices_px, b.vertices_px, atol=0.05)
+
+
+@pytest.mark.parametrize('colour', sorted(COLOURS_BGR))
+def test_each_named_colour_is_detected_as_itself(camera, config, colour):
+    spec = synthetic.BlockSpec('square', 0.04, 0.02, COLOURS_BGR[colour])
+    centre = (camera.cx, camera.cy)                      # on the optical axis, facing it: no side face shows
+    image, truths = synthetic.render_block_scene(camera, [(spec, block_pose(camera, centre, 0.2, 0.0, 0.0, 20.0))],
+                                                 np.random.default_rng(1))
+    detections = vision.detect(image, config)
+    assert [(d.shape, d.colour) for d in detections] == [('square', colour)]
+    assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).max() < 0.5
+    assert 0.5 < detections[0].quality <= 1.0 and not detections[0].touches_border
+
+
+def test_block_cut_by_the_border_is_flagged(camera, config):
+    spec = synthetic.BlockSpec('square', 0.04, 0.02, GREEN)
+    image, _ = synthetic.render_block_scene(camera, [(spec, block_pose(camera, (12, 240), 0.2, 0.0, 0.0, 10.0))],
+                                            np.random.default_rng(2))
+    detections = vision.detect(image, config)
+    assert detections and all(d.touches_border for d in detections)
+
+
+def test_detection_fields_and_drawing(camera, config):
+    spec = synthetic.BlockSpec('pentagon', 0.04, 0.02, GREEN)
+    image, truths = synthetic.render_block_scene(camera, [(spec, block_pose(camera, (320, 240), 0.2))],
+                                                 np.random.default_rng(4))
+    [detection] = vision.detect(image, config)
+    v = detection.vertices_px
+    assert v.shape == (5, 2) and detection.contour.dtype == np.int32 and detection.contour.shape[1:] == (1, 2)
+    angles = np.arctan2(v[:, 1] - v[:, 1].mean(), v[:, 0] - v[:, 0].mean())
+    assert np.all(np.diff(angles) > 0)
+    np.testing.assert_allclose(detection.centroid_px, truths[0]['centroid_px'], atol=0.5)
+    assert detection.area_px == pytest.approx(cv2.contourArea(truths[0]['vertices_px'].astype(np.float32)), rel=0.01)
+    before = image.copy()
+    drawn = vision.draw_detections(image, [detection])
+    np.testing.assert_array_equal(image, before)
+    assert drawn.shape == image.shape and np.count_nonzero(np.any(drawn != image, axis=2)) > 100
+
+
+# ----------------------------------------------------------------------------------------- errors, selection
+@pytest.mark.parametrize('image, message', [
+    (np.zeros((48, 64, 3), np.float32), 'uint8'),
+    (np.zeros((48, 64), np.uint8), 'mono8'),
+    (np.zeros((48, 64, 4), np.uint8), r'\(H, W, 3\)'),
+    (np.zeros((0, 64, 3), np.uint8), 'empty'),
+    ([[0, 0, 0]], 'numpy array'),
+])
+def test_bad_images_are_rejected(config, image, message):
+    with pytest.raises(ValueError, match=message):
+        vision.detect(image, config)
+
+
+def test_unknown_colour_or_shape_is_rejected(config):
+    image = np.full((48, 64, 3), 200, np.uint8)
+    with pytest.raises(ValueError, match='purple'):
+        vision.detect(image, config, colours=['purple'])
+    with pytest.raises(ValueError, match='star'):
+        vision.detect(image, config, shapes=['star'])
+    assert vision.detect(image, config) == []
+
+
+def test_select_target_with_distractors(camera, config):
+    blocks = [(synthetic.BlockSpec('square', 0.04, 0.02, GREEN), block_pose(camera, (180, 150), 0.30)),
+              (synthetic.BlockSpec('square', 0.05, 0.02, GREEN), block_pose(camera, (450, 330), 0.25)),   # the target
+              (synthetic.BlockSpec('square', 0.06, 0.02, COLOURS_BGR['red']), block_pose(camera, (460, 130), 0.2)),
+              (synthetic.BlockSpec('triangle', 0.07, 0.02, GREEN), block_pose(camera, (170, 340), 0.2))]
+    image, truths = synthetic.render_block_scene(camera, blocks, np.random.default_rng(8))
+    detections = vision.detect(image, config)
+    assert sorted((d.shape, d.colour) for d in detections) == [
+        ('square', 'green'), ('square', 'green'), ('square', 'red'), ('triangle', 'green')]
+    target = vision.select_target(detections, 'square', 'green', (camera.width, camera.height))
+    np.testing.assert_allclose(target.centroid_px, truths[1]['centroid_px'], atol=1.0)
+    assert vision.select_target(detections, 'hexagon', 'green', (640, 480)) is None
+    assert vision.select_target(detections, None, 'red', (640, 480)).colour == 'red'
+
+
+def test_select_target_breaks_ties_by_centrality():
+    def fake(centroid, area):
+        return vision.Detection('square', 'green', np.zeros((4, 2)), np.array(centroid, float), area, 1.0, False,
+                                np.zeros((4, 1, 2), np.int32))
+    far, near = fake((100, 100), 1000.0), fake((330, 250), 995.0)
+    assert vision.select_target([far, near], 'square', 'green', (640, 480)) is near
+    smaller = fake((320, 240), 900.0)
+    assert vision.select_target([far, smaller], 'square', 'green', (640, 480)) is far

@@ -1,0 +1,87 @@
+"""Object models: regular polygonal prisms (the blocks) and planes (the table top).
+
+Block frame (``block``, see docs/ARCHITECTURE.md): origin at the centre of the top face, +z the top
+face's normal pointing up (away from the table); top-face vertex k (k = 0..n-1) lies at angle
+``pi/n + 2*pi*k/n`` about +z at the circumradius ``R = s / (2 sin(pi/n))``, z = 0, so the vertices go
+counter-clockwise about +z and, for a square, the edges are parallel to x and y. Lengths in metres,
+angles in radians.
+"""
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+SHAPES = {'triangle': 3, 'square': 4, 'pentagon': 5, 'hexagon': 6}
+
+
+@dataclass(frozen=True)
+class PolygonModel:
+    """A regular n-gon prism: ``shape`` (a key of ``SHAPES``), side ``side`` (m), height ``height`` (m)."""
+    shape: str
+    side: float
+    height: float = 0.02
+
+    def __post_init__(self):
+        if self.shape not in SHAPES:
+            raise ValueError(f'unknown shape {self.shape!r}; expected one of {sorted(SHAPES)}')
+        if not (math.isfinite(self.side) and self.side > 0):
+            raise ValueError(f'side must be a positive number of metres, got {self.side!r}')
+        if not (math.isfinite(self.height) and self.height >= 0):
+            raise ValueError(f'height must be a non-negative number of metres, got {self.height!r}')
+
+    @property
+    def n(self):
+        """Number of vertices (and of sides) of the top face."""
+        return SHAPES[self.shape]
+
+    @property
+    def circumradius(self):
+        """Distance (m) from the top-face centre to each vertex: ``s / (2 sin(pi/n))``."""
+        return self.side / (2.0 * math.sin(math.pi / self.n))
+
+    @property
+    def symmetry_angle(self):
+        """Rotation (rad) about +z that maps the block onto itself: ``2 pi / n``."""
+        return 2.0 * math.pi / self.n
+
+    @cached_property
+    def vertices(self):
+        """(n, 3) read-only array: the top-face vertices in the block frame (m), counter-clockwise about +z."""
+        angles = math.pi / self.n + self.symmetry_angle * np.arange(self.n)
+        vertices = np.column_stack([self.circumradius * np.cos(angles),
+                                    self.circumradius * np.sin(angles),
+                                    np.zeros(self.n)])
+        vertices.flags.writeable = False
+        return vertices
+
+
+def model_for(shape, side, height=0.02):
+    """The ``PolygonModel`` of a ``shape`` block with side ``side`` (m) and height ``height`` (m)."""
+    return PolygonModel(shape, float(side), float(height))
+
+
+@dataclass(frozen=True)
+class Plane:
+    """The points X with ``normal . X = offset`` (``normal`` unit, metres); the normal points up (camera side)."""
+    normal: np.ndarray
+    offset: float
+
+    def __post_init__(self):
+        normal = np.asarray(self.normal, dtype=float).reshape(3)
+        length = np.linalg.norm(normal)
+        if not (np.all(np.isfinite(normal)) and length > 0 and math.isfinite(self.offset)):
+            raise ValueError(f'Plane needs a finite non-zero normal and offset, got {self.normal!r}, {self.offset!r}')
+        normal = normal / length
+        normal.flags.writeable = False
+        object.__setattr__(self, 'normal', normal)
+        object.__setattr__(self, 'offset', float(self.offset))
+
+    def transformed(self, T_b_a):
+        """This plane (expressed in frame a) expressed in frame b; ``T_b_a`` is the 4x4 pose of a in b."""
+        normal_b = T_b_a[:3, :3] @ self.normal
+        return Plane(normal_b, self.offset + normal_b @ T_b_a[:3, 3])
+
+    def signed_distance(self, points):
+        """Signed distance (m) of a point (3,) or points (N, 3) to the plane, positive on the normal's side."""
+        return np.asarray(points, dtype=float) @ self.normal - self.offset

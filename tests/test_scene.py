@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import yaml
 
-from baxter_pnp.sim.scene import (DEFAULT_SCENE_YAML, Scene, SceneError, load_scene, load_start_poses)
+from baxter_pnp.kinematics import load_start_poses
+from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, Scene, SceneError, load_scene
 
 VALID = {
     'table': {'top_z': -0.15, 'center': [0.75, 0.0], 'size': [0.9, 1.5]},

@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.models import model_for
-from baxter_pnp.sim.scene import CameraError, load_scene, load_start_poses
+from baxter_pnp.kinematics import load_start_poses
+from baxter_pnp.sim.scene import CameraError, load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
 

@@ -10,12 +10,14 @@ import os
 
 import numpy as np
 import pybullet as p
+import yaml
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.transforms import from_xyz_quat
 
 DEFAULT_URDF = os.path.join(PACKAGE_ROOT, 'urdf', 'baxter.urdf')
+START_POSES_YAML = os.path.join(PACKAGE_ROOT, 'config', 'start_poses.yaml')
 ARM_JOINTS = ('s0', 's1', 'e0', 'e1', 'w0', 'w1', 'w2')
 NEUTRAL = (0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0)   # baxter_interface Limb.move_to_neutral()
 
@@ -25,6 +27,14 @@ def arm_joint_names(side):
     if side not in ('left', 'right'):
         raise ValueError(f"side must be 'left' or 'right', got {side!r}")
     return [f'{side}_{j}' for j in ARM_JOINTS]
+
+
+def load_start_poses(path=None):
+    """dict pose name -> {left joint name: angle (rad)} from ``config/start_poses.yaml`` (the thesis's start poses)."""
+    with open(path or START_POSES_YAML) as f:
+        poses = yaml.safe_load(f)
+    names = arm_joint_names('left')
+    return {name: dict(zip(names, (float(a) for a in angles))) for name, angles in poses.items()}
 
 
 def body_indices(body, client):

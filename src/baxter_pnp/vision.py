@@ -61,7 +61,7 @@ from baxter_pnp.runtime import PACKAGE_ROOT
 
 DEFAULT_VISION_YAML = os.path.join(PACKAGE_ROOT, 'config', 'vision.yaml')
 SHAPE_OF_VERTEX_COUNT = {n: shape for shape, n in SHAPES.items()}
-_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+_SQUARE5 = np.ones((5, 5), np.uint8)
 LAPLACIAN_KERNEL = np.array([[-1, -1, -1], [-1, 8, -1], [-1, -1, -1]], dtype=np.float32)
 _TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
 
@@ -69,11 +69,10 @@ _TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest cou
 # ================================================================================== configuration
 @dataclass(frozen=True)
 class TopFaceConfig:
-    """Top-face isolation: faces split by the Canny edges of V inside the blob (see ``isolate_top_face``)."""
+    """Top-face isolation: the brightest face (by V) inside the blob (see ``isolate_top_face``)."""
     enabled: bool = True
-    blur_sigma_px: float = 1.0
-    canny_low: float = 15.0
-    canny_high: float = 35.0
+    blur_sigma_px: float = 0.8
+    min_contrast: float = 0.12
     min_face_fraction: float = 0.1
     min_solidity: float = 0.8
 
@@ -366,43 +365,44 @@ def order_vertices(vertices):
 def isolate_top_face(blob_mask, value, config):
     """Mask of the block's top face inside ``blob_mask`` (uint8, 255 inside), or None if none is found.
 
-    The faces of a block are regions of uniform colour separated by straight edges. ``value`` (V of
-    the original image, uint8) is smoothed (``blur_sigma_px``) and its edges are found with Canny
-    (hysteresis ``canny_low`` / ``canny_high``); the blob minus the (dilated) edges falls apart into
-    faces. The top face is the convex face (solidity >= ``min_solidity``; two side faces of equal
-    shade merge into a non-convex chevron) of largest area x mean V: under light from above the
-    table it is the brightest face, and in views up to ~60 deg from its normal the largest. The face
-    is grown back over the edge band, within the blob. When it covers nearly all the blob (all but
-    ``min_face_fraction``), the blob itself is returned.
+    A block's faces share its hue; under light from above the table the top face is the most
+    brightly lit, so in ``value`` (V of the original image, uint8) it is the brightest face and its
+    side faces are darker. The smoothed (``blur_sigma_px``) V of the blob's interior (the blob
+    eroded by 2 px, clear of the pixels it shares with the table) is split in two by Otsu's
+    threshold; while the split is significant (the classes' mean V differ by at least
+    ``min_contrast`` of the bright one's, and the bright class holds at least ``min_face_fraction``
+    of the interior) the bright class is split again, so that a side face lit nearly as brightly as
+    the top goes too. The top face is the largest connected region of the blob above the last
+    significant threshold, or the blob itself when the first split is not significant (one face:
+    the lighting gradient across a face changes its V by a few per cent, a face edge by tens).
+    None when that region's solidity (area / convex-hull area) is below ``min_solidity``.
     """
     x, y, w, h = cv2.boundingRect(blob_mask)
     box = (slice(y, y + h), slice(x, x + w))
     blob = blob_mask[box]
     smoothed = cv2.GaussianBlur(value[box], (0, 0), config.blur_sigma_px)
-    edges = cv2.dilate(cv2.Canny(smoothed, config.canny_low, config.canny_high, L2gradient=True), _CROSS)
-    faces = cv2.bitwise_and(blob, cv2.bitwise_not(edges))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(faces, connectivity=4)
-    blob_area = cv2.countNonZero(blob)
-    best, best_score = None, 0.0
-    for label in range(1, count):
-        area = stats[label, cv2.CC_STAT_AREA]
-        if area < config.min_face_fraction * blob_area:
-            continue
-        face = np.where(labels == label, np.uint8(255), np.uint8(0))
-        contours, _ = cv2.findContours(face, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        outline = max(contours, key=cv2.contourArea)
-        if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
-            continue
-        score = area * cv2.mean(smoothed, face)[0]
-        if score > best_score:
-            best, best_score = face, score
-    if best is None:
-        return None
-    if cv2.countNonZero(best) >= (1.0 - config.min_face_fraction) * blob_area:
+    values = smoothed[cv2.erode(blob, _SQUARE5) > 0]
+    minimum_count = config.min_face_fraction * len(values)
+    threshold = None
+    while len(values) >= 2:
+        cut, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+        bright = values[values > cut]
+        if len(bright) < max(minimum_count, 1) or len(bright) == len(values):
+            break
+        bright_mean, dark_mean = float(bright.mean()), float(values[values <= cut].mean())
+        if bright_mean - dark_mean < config.min_contrast * bright_mean:
+            break
+        threshold, values = cut, bright
+    if threshold is None:
         return blob_mask
-    top = np.zeros_like(blob_mask)
-    top[box] = cv2.bitwise_and(cv2.dilate(best, _CROSS, iterations=2), blob)
-    return top
+    _, top = cv2.threshold(smoothed, threshold, 255, cv2.THRESH_BINARY)
+    contours, _ = cv2.findContours(cv2.bitwise_and(top, blob), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    outline = max(contours, key=cv2.contourArea)
+    if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
+        return None
+    face = np.zeros_like(blob_mask)
+    cv2.drawContours(face, [outline], -1, 255, cv2.FILLED, offset=(x, y))
+    return face
 
 
 def refine_vertices(image_bgr, coarse_px, config):

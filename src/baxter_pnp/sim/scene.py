@@ -19,12 +19,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
-from baxter_pnp.kinematics import arm_joint_names
+from baxter_pnp.kinematics import arm_joint_names, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.transforms import from_xyz_rpy
 
-START_POSES_YAML = os.path.join(PACKAGE_ROOT, 'config', 'start_poses.yaml')
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
 
 
@@ -110,14 +109,6 @@ def load_scene(path=None):
         return Scene.from_dict(d)
     except SceneError as error:
         raise SceneError(f'{path}: {error}') from None
-
-
-def load_start_poses(path=None):
-    """dict pose name -> {left joint name: angle (rad)} from ``config/start_poses.yaml``."""
-    with open(path or START_POSES_YAML) as f:
-        poses = yaml.safe_load(f)
-    names = arm_joint_names('left')
-    return {name: dict(zip(names, (float(a) for a in angles))) for name, angles in poses.items()}
 
 
 # ------------------------------------------------------------------------------------------- validation

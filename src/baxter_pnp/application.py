@@ -1,0 +1,518 @@
+"""``pick_square.py``: Baxter looks, finds the block, servos to it, picks it up (and places it).
+
+The ROS edge of the pick task (``pick.py`` holds the pure logic). It uses only the Baxter SDK's topics
+and services (``robot.py``), so the same run works on a real robot and on the fake Baxter:
+
+1. enable the robot, calibrate and open the gripper, open the hand camera, read the hand-eye
+   transform from tf (or the URDF), move to the start pose;
+2. approach the hover pose above the block with the chosen law: ``pbvs`` (the thesis's dynamic
+   look-and-move, IK service + position moves), ``ibvs`` or ``hybrid`` (2.5D) (camera twist ->
+   joint velocities through the arm Jacobian, at the camera rate);
+3. descend, close, verify with the gripper state and a look, lift; optionally place at ``place_xy``.
+
+Every step is logged (step, error in mm and px, depth estimate). Published for watching:
+``/baxter_pnp/debug_image`` (annotated camera view), ``/baxter_pnp/target_pose`` (block pose in
+``base``, PoseStamped), tf frame ``block``, and ``/baxter_pnp/result`` (latched JSON). Exit status 0
+only on a verified pick (and place, when asked).
+"""
+import argparse
+import json
+import os
+import time
+from typing import NamedTuple, Optional
+
+import numpy as np
+import rospy
+import yaml
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from sensor_msgs.msg import Image
+from std_msgs.msg import String
+
+from baxter_pnp import perception, pick, robot, servo, vision
+from baxter_pnp.kinematics import ArmKinematics, load_start_poses
+from baxter_pnp.ros_image import bgr_to_msg
+from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.safety import ArmSafety, UnsafeCommand
+from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
+
+DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
+SETTLE_TOLERANCE = 0.003        # rad: a position move counts as arrived (and the arm as still) within this
+FRAME_TIMEOUT = 3.0             # s (wall): a camera frame must come within this
+
+
+class PickFailure(RuntimeError):
+    """The run cannot go on; ``reason`` is a short machine-readable cause (result JSON ``failure_reason``)."""
+
+    def __init__(self, reason, detail=''):
+        super().__init__('%s: %s' % (reason, detail) if detail else reason)
+        self.reason = reason
+
+
+class Look(NamedTuple):
+    """One look through the hand camera and what it found (poses 4x4 in base, metres)."""
+    frame: robot.Frame
+    T_base_gripper: np.ndarray
+    T_base_camera: np.ndarray
+    target: Optional[perception.BlockObservation]
+    T_base_block: Optional[np.ndarray]
+
+
+class PickApplication:
+    """One pick (and place) run. Construct after ``rospy.init_node``; ``run()`` returns a PickResult."""
+
+    def __init__(self, config, vision_config, output_dir=None):
+        self.config = config
+        self.vision_config = vision_config
+        self.output_dir = output_dir
+        self.model = config.model
+        self.result = pick.PickResult(success=False, mode=config.mode)
+        self.last_block = None
+        self.last_annotated = None
+        self._debug_pub = rospy.Publisher('/baxter_pnp/debug_image', Image, queue_size=1)
+        self._target_pub = rospy.Publisher('/baxter_pnp/target_pose', PoseStamped, queue_size=1, latch=True)
+        self._result_pub = rospy.Publisher('/baxter_pnp/result', String, queue_size=1, latch=True)
+        import tf2_ros
+        self._tf = tf2_ros.TransformBroadcaster()
+
+    # ================================================================================ set-up
+    def connect(self):
+        """Connect to the robot: enable, limb with its safety checks, gripper, camera, hand-eye."""
+        c = self.config
+        rospy.loginfo('pick: connecting to the robot (%s arm)' % c.side)
+        self.enabler = robot.RobotEnable()
+        self.enabler.enable()
+        self.kinematics = ArmKinematics(c.side)
+        self.safety = ArmSafety.for_arm(self.kinematics, table_top_z=c.table_top_z, tip_margin=c.tip_margin)
+        self.limb = robot.Limb(c.side, self.safety)
+        self.gripper = robot.Gripper(c.side)
+        self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
+        self.hand_eye = robot.hand_eye_transform(c.side)
+        rospy.loginfo('pick: hand-eye from %s: camera at %s m from the gripper tip'
+                      % (self.hand_eye.source, np.round(self.hand_eye.T_gripper_camera[:3, 3], 4).tolist()))
+        self.limb.set_speed_ratio(c.speed_ratio)
+
+    # ================================================================================ the run
+    def run(self):
+        """Connect, pick (and place); never raises for robot faults: they end in ``result.failure_reason``."""
+        c = self.config
+        start = None
+        try:
+            self.connect()
+            if not self.gripper.open(block=True, timeout=3.0):
+                raise PickFailure('gripper', 'the gripper did not open')
+            self.move_to_joints(load_start_poses()[c.start_pose] if c.side == 'left'
+                                else self._mirror(load_start_poses()[c.start_pose]), 'start pose %s' % c.start_pose)
+            start = rospy.get_time()
+            self.deadline = start + c.timeout
+            self.pick(start)
+            if c.place_xy is not None:
+                self.place()
+            self.result.success = True
+        except PickFailure as failure:
+            self.fail(failure.reason, str(failure))
+        except UnsafeCommand as error:
+            self.fail('unsafe_command', str(error))
+        except robot.IKFailure as error:
+            self.fail('ik_failure', str(error))
+        except robot.StreamLost as error:
+            self.fail('stream_lost', str(error))
+        except robot.ServiceUnavailable as error:
+            self.fail('service_unavailable', str(error))
+        except robot.RobotError as error:
+            self.fail('robot_error', str(error))
+        finally:
+            if start is not None:
+                self.result.total_time_s = rospy.get_time() - start
+            self.finish()
+        return self.result
+
+    def pick(self, start):
+        c = self.config
+        for attempt in range(1, c.max_grasp_attempts + 1):
+            self.result.grasp_attempts = attempt
+            T_base_block = self.approach_pbvs(start) if c.mode == 'pbvs' else self.approach_velocity(start)
+            if self.grasp(T_base_block):
+                self.result.time_s = rospy.get_time() - start
+                rospy.loginfo('pick: block picked after %.1f s (%d steps, attempt %d)'
+                              % (self.result.time_s, self.result.steps, attempt))
+                return
+            rospy.logwarn('pick: grasp attempt %d missed; opening and trying again' % attempt)
+            self.gripper.open(block=True, timeout=3.0)
+            self.move_to_pose(pick.raised(self.limb.endpoint_pose(), c.hover_height + c.grasp_depth), 'back up')
+        raise PickFailure('grasp_missed', 'no grip after %d attempts' % c.max_grasp_attempts)
+
+    # ================================================================================ perception
+    def look(self, after_stamp=None):
+        """Wait for a frame newer than ``after_stamp`` (ROS time), detect and estimate the block."""
+        c = self.config
+        try:
+            frame = self.camera.wait_for_frame(after_stamp, timeout=FRAME_TIMEOUT)
+        except robot.RobotTimeout as error:
+            raise robot.StreamLost(self.camera.image_topic, FRAME_TIMEOUT) from error
+        T_base_gripper = self.limb.endpoint_pose()
+        T_base_camera = T_base_gripper @ self.hand_eye.T_gripper_camera
+        plane = pick.table_plane_in_camera(T_base_camera, c.table_top_z)
+        observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, c.side_length,
+                                                 c.block_height, shape=c.shape, colour=c.colour,
+                                                 method=c.estimator, table_plane=plane)
+        target = self._choose(observations, frame, T_base_camera)
+        T_base_block = None if target is None else T_base_camera @ target.pose.T_camera_object
+        self.publish_view(frame, observations, T_base_block)
+        return Look(frame, T_base_gripper, T_base_camera, target, T_base_block)
+
+    def _choose(self, observations, frame, T_base_camera):
+        """The target among the estimated observations: the one nearest the last estimate (tracking), else
+        the largest / most central (vision.select_target)."""
+        posed = [o for o in observations if o.pose is not None]
+        if not posed:
+            return None
+        if self.last_block is not None:
+            distances = [np.linalg.norm((T_base_camera @ o.pose.T_camera_object)[:3, 3] - self.last_block[:3, 3])
+                         for o in posed]
+            if min(distances) < 0.05:
+                return posed[int(np.argmin(distances))]
+        chosen = vision.select_target([o.detection for o in posed], self.config.shape, self.config.colour,
+                                      (frame.camera.width, frame.camera.height))
+        return next(o for o in posed if o.detection is chosen)
+
+    def publish_view(self, frame, observations, T_base_block):
+        annotated = perception.annotate(frame.image_bgr, observations, frame.camera)
+        self.last_annotated = annotated
+        stamp = rospy.Time.from_sec(frame.stamp)
+        message = bgr_to_msg(annotated, 'bgr8')
+        message.header.stamp = stamp
+        message.header.frame_id = frame.camera.frame_id
+        self._debug_pub.publish(message)
+        if T_base_block is None:
+            return
+        pose = PoseStamped()
+        pose.header.stamp, pose.header.frame_id = stamp, 'base'
+        matrix_to_pose_msg(T_base_block, pose.pose)
+        self._target_pub.publish(pose)
+        transform = TransformStamped()
+        transform.header.stamp, transform.header.frame_id, transform.child_frame_id = stamp, 'base', 'block'
+        xyz, quat = to_xyz_quat(T_base_block)
+        t, q = transform.transform.translation, transform.transform.rotation
+        t.x, t.y, t.z = (float(v) for v in xyz)
+        q.x, q.y, q.z, q.w = (float(v) for v in quat)
+        self._tf.sendTransform(transform)
+
+    def look_for_block(self, after_stamp=None):
+        """A look that finds the block whole: re-centres on a block cut by the image border and backs
+        off upward when it is lost (up to ``max_lost`` times in a row)."""
+        c = self.config
+        for lost in range(c.max_lost + 1):
+            self.check_deadline()
+            look = self.look(after_stamp)
+            if look.target is not None and not look.target.detection.touches_border:
+                self.last_block = look.T_base_block
+                return look
+            if look.target is not None:
+                rospy.logwarn('pick: block cut by the image border: re-centring on it')
+                T_next = self.recentred(look)
+            else:
+                rospy.logwarn('pick: block not in view (%d/%d): backing off %.0f mm upward'
+                              % (lost + 1, c.max_lost, 1000 * c.backoff_height))
+                T_next = pick.raised(look.T_base_gripper, c.backoff_height)
+            self.move_to_pose(T_next, 're-acquire')
+            after_stamp = rospy.get_time()
+        raise PickFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves'
+                          % (c.colour, c.shape, c.max_lost))
+
+    def recentred(self, look):
+        """Gripper pose translated so the camera looks at the (partly visible) block's estimated centre."""
+        T_base_block = look.T_base_block
+        T_base_camera = look.T_base_camera
+        axis = T_base_camera[:3, 2]
+        plane_z = T_base_block[2, 3]
+        hit = T_base_camera[:3, 3] + axis * (plane_z - T_base_camera[2, 3]) / axis[2] if abs(axis[2]) > 1e-3 \
+            else T_base_camera[:3, 3]
+        T = look.T_base_gripper.copy()
+        T[:2, 3] += (T_base_block[:2, 3] - hit[:2])
+        T[2, 3] += self.config.backoff_height / 2
+        return T
+
+    # ================================================================================ approach laws
+    def record(self, step, start, look, T_goal, error_px):
+        translation, rotation = pick.pose_error(look.T_base_gripper, T_goal)
+        depth = look.target.pose.depth_m
+        self.result.history.append(pick.StepRecord(step, rospy.get_time() - start, 1000 * translation,
+                                                   np.degrees(rotation), error_px, depth,
+                                                   np.round(look.T_base_block[:3, 3], 5).tolist()))
+        self.result.steps = step
+        self.result.final_error_mm_est = 1000 * translation
+        rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base'
+                      % (self.config.mode, step, 1000 * translation, np.degrees(rotation), error_px, 1000 * depth,
+                         np.round(1000 * look.T_base_block[:3, 3], 1).tolist()))
+        return translation, rotation
+
+    def image_error_px(self, look, T_goal):
+        """Pixel distance between the block centre now and where it appears from the goal pose."""
+        camera = look.frame.camera
+        now = camera.project(look.target.pose.T_camera_object[:3, 3][None])[0]
+        at_goal = camera.project(pick.camera_goal(T_goal, look.T_base_block, self.hand_eye.T_gripper_camera)
+                                 [:3, 3][None])[0]
+        return float(np.linalg.norm(now - at_goal))
+
+    def approach_pbvs(self, start):
+        """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted."""
+        c = self.config
+        look = self.look_for_block()
+        for step in range(c.max_steps + 1):
+            T_goal = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
+            self.record(step, start, look, T_goal, self.image_error_px(look, T_goal))
+            if pick.converged(look.T_base_gripper, T_goal, c):
+                return look.T_base_block
+            T_next = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
+                                      self.hand_eye.T_gripper_camera)
+            self.move_to_pose(T_next, 'servo step %d' % (step + 1))
+            look = self.look_for_block(after_stamp=rospy.get_time())
+        raise PickFailure('not_converged', 'still %.1f mm from the hover pose after %d steps'
+                          % (self.result.final_error_mm_est, c.max_steps))
+
+    def approach_velocity(self, start):
+        """IBVS or 2.5D at the camera rate: camera twist -> joint velocities (arm Jacobian from the URDF)."""
+        c = self.config
+        gain = pick.make_gain(c)
+        camera_frame = '%s_hand_camera' % c.side
+        velocity_limits = c.speed_ratio * self.kinematics.velocity_limits * 2.0
+        look = self.look_for_block()
+        for iteration in range(10 * c.max_steps + 1):
+            T_goal = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
+            T_camera_goal_block = pick.camera_goal(T_goal, look.T_base_block, self.hand_eye.T_gripper_camera)
+            camera = look.frame.camera
+            vertices_xy = camera.undistort_points(look.target.detection.vertices_px)
+            twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
+                                            vertices_xy, self.model, gain)
+            translation, rotation = self.record(iteration, start, look, T_goal, error * camera.fx)
+            if error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
+                self.limb.exit_control_mode()
+                return look.T_base_block
+            twist_base = servo.camera_twist_to_base(pick.bounded_twist(twist, c.max_linear_speed,
+                                                                       c.max_angular_speed), look.T_base_camera)
+            q = self.limb.joint_positions()
+            qdot = servo.joint_velocities(self.kinematics.jacobian(q, camera_frame), twist_base,
+                                          qdot_limits=velocity_limits)
+            self.limb.set_joint_velocities(qdot)
+            try:
+                look = self.look_for_velocity_loop(look.frame.stamp)
+            except PickFailure:
+                self.limb.exit_control_mode()
+                raise
+        self.limb.exit_control_mode()
+        raise PickFailure('not_converged', 'feature error still %.1f px after %d iterations'
+                          % (error * camera.fx, 10 * c.max_steps))
+
+    def look_for_velocity_loop(self, after_stamp):
+        """Next look of the velocity loop; on a lost or cut block the arm stops and re-acquires first."""
+        self.check_deadline()
+        look = self.look(after_stamp)
+        if look.target is not None and not look.target.detection.touches_border:
+            self.last_block = look.T_base_block
+            return look
+        self.limb.exit_control_mode()
+        return self.look_for_block(after_stamp=rospy.get_time())
+
+    # ================================================================================ grasp and place
+    def grasp(self, T_base_block):
+        """Descend, close, verify (gripper state, then lift and look). True on a verified grasp."""
+        c = self.config
+        T_grasp = pick.grasp_pose(T_base_block, c, self.limb.endpoint_pose())
+        self.move_to_pose(T_grasp, 'descend to grasp')
+        self.gripper.close(block=True, timeout=3.0)
+        if not self.gripper.gripping() or self.gripper.missed():
+            rospy.logwarn('pick: gripper reports %s (position %.1f %%)'
+                          % ('missed' if self.gripper.missed() else 'no grip', self.gripper.position()))
+            return False
+        self.T_gripper_block = invert(T_grasp) @ T_base_block
+        self.move_to_pose(pick.raised(self.limb.endpoint_pose(), c.lift_height), 'lift')
+        if not self.gripper.gripping():
+            rospy.logwarn('pick: the block slipped out while lifting')
+            return False
+        look = self.look(after_stamp=rospy.get_time())
+        if look.target is not None:
+            T_gripper_block_seen = invert(look.T_base_gripper) @ look.T_base_block
+            offset = T_gripper_block_seen[:3, 3] - self.T_gripper_block[:3, 3]
+            if np.linalg.norm(offset) > 0.02:
+                rospy.logwarn('pick: a look finds the block %.1f mm from where it should be in the hand'
+                              % (1000 * np.linalg.norm(offset)))
+                return False
+            self.T_gripper_block = T_gripper_block_seen
+            rospy.loginfo('pick: grasp verified by a look (block %.1f mm from the expected place in the hand)'
+                          % (1000 * np.linalg.norm(offset)))
+        else:
+            rospy.logwarn('pick: the look after lifting does not see the block (occluded?); gripper reports gripping')
+        return True
+
+    def place(self):
+        """Carry the block to ``place_xy``, lower it to the table, open, retreat."""
+        c = self.config
+        holding = self.limb.endpoint_pose()
+        rospy.loginfo('pick: placing the block at (%.3f, %.3f) m' % tuple(c.place_xy))
+        self.move_to_pose(pick.place_pose(holding, self.T_gripper_block, c.place_xy, c, c.lift_height),
+                          'carry to the place position')
+        self.move_to_pose(pick.place_pose(self.limb.endpoint_pose(), self.T_gripper_block, c.place_xy, c,
+                                          c.place_clearance), 'lower to the table')
+        if not self.gripper.open(block=True, timeout=3.0):
+            raise PickFailure('gripper', 'the gripper did not open to release the block')
+        self.move_to_pose(pick.raised(self.limb.endpoint_pose(), c.lift_height), 'retreat')
+        self.result.placed = True
+
+    # ================================================================================ motion
+    def move_to_pose(self, T_base_gripper, what):
+        """IK (seeded with the current angles; halfway poses if that fails) then a safety-checked move."""
+        xyz, quat = to_xyz_quat(T_base_gripper)
+        rospy.loginfo('pick: %s: gripper to %s mm, quaternion %s' % (what, np.round(1000 * xyz, 1).tolist(),
+                                                                  np.round(quat, 3).tolist()))
+        current = self.limb.endpoint_pose()
+        try:
+            q = self.limb.solve_ik(T_base_gripper, seed=self.limb.joint_angles())
+        except robot.IKFailure:
+            halfway = servo.interpolate_pose(current, T_base_gripper, 0.5)
+            rospy.logwarn('pick: %s: no IK solution, trying the halfway pose' % what)
+            q = self.limb.solve_ik(halfway, seed=self.limb.joint_angles())
+        self.move_to_joints(q, what)
+
+    def move_to_joints(self, q, what):
+        """Safety-checked position move; a long one goes in segments of at most the safety's joint step,
+        along the same straight joint-space line."""
+        q_start = self.limb.joint_angles()
+        names = list(q_start)
+        q_target = np.array([q[name] for name in names], dtype=float)
+        q_from = np.array([q_start[name] for name in names], dtype=float)
+        segments = max(1, int(np.ceil(np.max(np.abs(q_target - q_from)) / self.safety.limits.max_joint_step)))
+        for k in range(1, segments + 1):
+            waypoint = dict(zip(names, q_from + (q_target - q_from) * k / segments))
+            if not self.limb.move_to_joint_positions(waypoint, timeout=10.0, tolerance=SETTLE_TOLERANCE):
+                raise PickFailure('motion_timeout', '%s: the arm did not arrive' % what)
+
+    def check_deadline(self):
+        if rospy.get_time() > self.deadline:
+            raise PickFailure('timeout', 'the run exceeded %.0f s' % self.config.timeout)
+
+    @staticmethod
+    def _mirror(left_angles):
+        """The right arm's mirror image of left-arm angles (s0, e0, w0, w2 change sign)."""
+        signs = {'s0': -1, 's1': 1, 'e0': -1, 'e1': 1, 'w0': -1, 'w1': 1, 'w2': -1}
+        return {'right_' + name[5:]: signs[name[5:]] * angle for name, angle in left_angles.items()}
+
+    # ================================================================================ ending
+    def fail(self, reason, detail):
+        """Abort cleanly: log, open the gripper if nothing is held, retreat upward if that is safe."""
+        self.result.success = False
+        self.result.failure_reason = reason
+        rospy.logerr('pick: FAILED (%s): %s' % (reason, detail))
+        try:
+            if getattr(self, 'gripper', None) is not None and not self.gripper.gripping():
+                self.gripper.open(block=False)
+            if getattr(self, 'limb', None) is not None:
+                self.limb.exit_control_mode()
+                self.move_to_joints(self.limb.solve_ik(pick.raised(self.limb.endpoint_pose(), 0.05),
+                                                       seed=self.limb.joint_angles()), 'retreat')
+        except (PickFailure, robot.RobotError, UnsafeCommand, ValueError) as error:
+            rospy.logwarn('pick: could not retreat after the failure: %s' % error)
+
+    def finish(self):
+        r = self.result
+        summary = ('pick: %s in %.1f s (%d steps, mode %s, final estimated error %s mm%s)'
+                   % ('SUCCESS' if r.success else 'FAILURE', r.time_s, r.steps, r.mode,
+                      'n/a' if r.final_error_mm_est is None else '%.1f' % r.final_error_mm_est,
+                      '' if r.success else ', reason: %s' % r.failure_reason))
+        (rospy.loginfo if r.success else rospy.logerr)(summary)
+        self._result_pub.publish(String(json.dumps(r.to_json())))
+        if self.output_dir:
+            write_outputs(self.output_dir, r, self.last_annotated)
+
+
+def write_outputs(output_dir, result, annotated):
+    """result.json, final_view.png (last annotated camera view) and errors.png (error vs step)."""
+    import cv2
+    os.makedirs(output_dir, exist_ok=True)
+    with open(os.path.join(output_dir, 'result.json'), 'w') as f:
+        json.dump(result.to_json(), f, indent=1)
+    if annotated is not None:
+        cv2.imwrite(os.path.join(output_dir, 'final_view.png'), annotated)
+    if result.history:
+        plot_errors(result, os.path.join(output_dir, 'errors.png'))
+
+
+def plot_errors(result, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    steps = [h.step for h in result.history]
+    figure, (ax_mm, ax_px) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    ax_mm.plot(steps, [h.error_mm for h in result.history], 'o-', label='position error (mm)')
+    ax_mm.plot(steps, [h.error_deg for h in result.history], 's--', label='orientation error (deg)')
+    ax_mm.set_yscale('log')
+    ax_mm.set_ylabel('estimated error to hover pose')
+    ax_mm.legend()
+    ax_mm.set_title('pick_square, mode %s: %s' % (result.mode, 'success' if result.success else result.failure_reason))
+    ax_px.plot(steps, [h.error_px for h in result.history], 'o-', color='tab:green')
+    ax_px.set_ylabel('image error (px)')
+    ax_px.set_xlabel('step' if result.mode == 'pbvs' else 'iteration (camera frame)')
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+# ==================================================================================== entry point
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog='pick_square.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser.add_argument('--config', default=DEFAULT_CONFIG, help='pick parameters YAML (default %(default)s)')
+    parser.add_argument('--mode', choices=pick.MODES)
+    parser.add_argument('--arm', dest='side', choices=['left', 'right'])
+    parser.add_argument('--shape', help='target shape (triangle, square, pentagon, hexagon)')
+    parser.add_argument('--side-length', type=float, help='block side (m)')
+    parser.add_argument('--colour', '--color', dest='colour', help='block colour (a name in config/vision.yaml)')
+    parser.add_argument('--step-fraction', type=float, help='PBVS step fraction (thesis: 0.35 or 0.12)')
+    parser.add_argument('--start-pose', help='start pose name in config/start_poses.yaml (down, angled)')
+    parser.add_argument('--table-top-z', type=float, help='table top height in base (m)')
+    parser.add_argument('--estimator', choices=['sqp', 'ippe', 'sqpnp'])
+    parser.add_argument('--speed-ratio', type=float, help='arm speed ratio (0, 1]')
+    parser.add_argument('--place', metavar='X,Y', help='place the block at this table position (base, m)')
+    parser.add_argument('--result-json', metavar='FILE', help='write the result JSON here')
+    parser.add_argument('--output-dir', metavar='DIR', help='write result.json, final_view.png and errors.png here')
+    parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
+    return parser.parse_args(argv)
+
+
+def build_config(args):
+    """Defaults <- the YAML <- private ROS parameters (~name, e.g. from the launch file) <- command line."""
+    values = {}
+    if args.config:
+        with open(args.config) as f:
+            values.update(yaml.safe_load(f) or {})
+    for name in pick.PickConfig.__dataclass_fields__:
+        if rospy.has_param('~' + name):
+            values[name] = rospy.get_param('~' + name)
+    for name in ('mode', 'side', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'table_top_z',
+                 'estimator', 'speed_ratio'):
+        if getattr(args, name) is not None:
+            values[name] = getattr(args, name)
+    if args.place:
+        try:
+            values['place_xy'] = [float(v) for v in args.place.split(',')]
+        except ValueError:
+            raise ValueError('--place: expected X,Y in metres, got %r' % args.place) from None
+    return pick.PickConfig.from_dict(values)
+
+
+def main(argv=None):
+    args = parse_args(rospy.myargv()[1:] if argv is None else argv)
+    rospy.init_node('pick_square', disable_signals=False)
+    try:
+        config = build_config(args)
+        vision_config = vision.VisionConfig.from_yaml(args.vision_config)
+    except (OSError, ValueError, TypeError) as error:
+        rospy.logerr('pick_square: bad configuration: %s' % error)
+        return 2
+    rospy.loginfo('pick_square: %s' % json.dumps(config.as_dict()))
+    application = PickApplication(config, vision_config, args.output_dir)
+    started = time.monotonic()
+    result = application.run()
+    rospy.loginfo('pick_square: wall time %.1f s' % (time.monotonic() - started))
+    if args.result_json:
+        with open(args.result_json, 'w') as f:
+            json.dump(result.to_json(), f, indent=1)
+    return 0 if result.success else 1

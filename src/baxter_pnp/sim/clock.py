@@ -1,0 +1,72 @@
+"""Simulated-time bookkeeping for the fake Baxter: wall-clock pacing and periodic schedules (no ROS).
+
+The fake Baxter owns time: it advances the physics by fixed steps and publishes ``/clock``. Everything
+periodic (publications, rendering) is scheduled in simulated seconds with ``RateSchedule``, so rates
+stay right in simulated time however fast the CPU is; ``RealTimePacer`` only decides how long to sleep
+in wall time so that simulated time runs at ``real_time_factor`` times wall time (or as fast as
+possible with a factor of 0, or as fast as the CPU allows when it cannot keep up).
+"""
+import time
+
+
+class RateSchedule:
+    """A task due every ``1 / rate_hz`` simulated seconds, first at ``start`` (s)."""
+
+    def __init__(self, rate_hz, start=0.0):
+        if not rate_hz > 0:
+            raise ValueError(f'rate must be positive, got {rate_hz!r} Hz')
+        self.period = 1.0 / float(rate_hz)
+        self._next = float(start)
+
+    def due(self, now):
+        """True (once) when the task is due at simulated time ``now`` (s); then the next due time is set.
+
+        Due times stay on the grid ``start + k * period`` so the average rate is exact; after a pause
+        longer than a period (e.g. a camera closed, then opened) the grid restarts at ``now``.
+        """
+        if now + 1e-9 < self._next:
+            return False
+        self._next += self.period
+        if self._next <= now:
+            self._next = now + self.period
+        return True
+
+
+class RealTimePacer:
+    """Sleeps so that simulated time advances ``real_time_factor`` times as fast as wall time.
+
+    ``real_time_factor`` 0 means no sleeping at all. When the simulation falls behind by more than
+    ``max_lag`` wall seconds (CPU too slow), the reference is moved instead of rushing to catch up.
+    ``wall_clock`` and ``sleep`` are injectable for tests.
+    """
+
+    def __init__(self, real_time_factor=1.0, max_lag=0.1, wall_clock=time.monotonic, sleep=time.sleep):
+        if real_time_factor < 0:
+            raise ValueError(f'real-time factor must be >= 0, got {real_time_factor!r}')
+        self.real_time_factor = float(real_time_factor)
+        self.max_lag = float(max_lag)
+        self._wall_clock, self._sleep = wall_clock, sleep
+        self._reference = None          # (wall time, sim time) that pacing is measured from
+        self._start = None              # (wall time, sim time) of the first call, for measured_factor()
+        self._last = None
+
+    def pace(self, sim_time):
+        """Sleep until wall time catches up with ``sim_time`` (simulated seconds)."""
+        wall = self._wall_clock()
+        if self._reference is None:
+            self._reference = self._start = (wall, sim_time)
+        self._last = (wall, sim_time)
+        if self.real_time_factor == 0:
+            return
+        wall_ref, sim_ref = self._reference
+        target = wall_ref + (sim_time - sim_ref) / self.real_time_factor
+        if target > wall:
+            self._sleep(target - wall)
+        elif wall - target > self.max_lag:
+            self._reference = (wall, sim_time)
+
+    def measured_factor(self):
+        """Simulated seconds per wall second since the first ``pace`` call (0 before two calls)."""
+        if self._start is None or self._last[0] <= self._start[0]:
+            return 0.0
+        return (self._last[1] - self._start[1]) / (self._last[0] - self._start[0])

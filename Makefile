@@ -18,7 +18,7 @@ STAMP_VENV := $(VENV)/.stamp-requirements
 GENERATED := $(ROOT)/src/baxter_pnp/_generated/baxter_core_msgs/__init__.py
 PTH := $(VENV)/lib/python3.11/site-packages/baxter_pnp.pth
 
-.PHONY: all setup test test-fast demo bench-perception clean
+.PHONY: all setup test demo demo-perception bench-perception clean
 
 all: setup
 
@@ -47,11 +47,12 @@ $(PTH): $(STAMP_VENV)
 test: setup
 	cd $(ROOT) && $(PY) -m pytest -q tests
 
-test-fast: setup
-	cd $(ROOT) && $(PY) -m pytest -q -m "not slow" tests
-
+# The whole system headless: rosmaster + fake Baxter + pick_square.py (pick, then place); outputs in out/demo.
 demo: setup
-	$(PY) scripts/perception_demo.py --out out/demo
+	$(PY) scripts/demo.py --out out/demo
+
+demo-perception: setup
+	$(PY) scripts/perception_demo.py --out out/demo_perception
 
 bench-perception: setup
 	$(PY) scripts/bench_perception.py

@@ -1,13 +1,13 @@
 #!/usr/bin/python3
 """Perception benchmark: detection rate, pose/depth/orientation error and time per frame, per estimator."""
 import os
+import sys
+
 os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # timing on one core (before numpy is imported)
 os.environ.setdefault('OMP_NUM_THREADS', '1')
-
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.pardir, 'src'))  # a checkout
 from baxter_pnp.runtime import use_project_venv  # noqa: E402
 use_project_venv(__file__)
-
-import sys  # noqa: E402
 
 from baxter_pnp.perception_bench import main  # noqa: E402
 

@@ -1,9 +1,11 @@
 #!/usr/bin/python3
 """Detect coloured blocks in image files and print their 3D pose (see baxter_pnp.detect_cli)."""
-from baxter_pnp.runtime import use_project_venv
-use_project_venv(__file__)
+import os
+import sys
 
-import sys  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.pardir, 'src'))  # a checkout
+from baxter_pnp.runtime import use_project_venv  # noqa: E402
+use_project_venv(__file__)
 
 from baxter_pnp.detect_cli import main  # noqa: E402
 

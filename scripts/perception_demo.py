@@ -1,9 +1,11 @@
 #!/usr/bin/python3
 """Perception demo: render hand-camera views, detect the blocks, print pose estimates beside the truth."""
-from baxter_pnp.runtime import use_project_venv
-use_project_venv(__file__)
+import os
+import sys
 
-import sys  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.pardir, 'src'))  # a checkout
+from baxter_pnp.runtime import use_project_venv  # noqa: E402
+use_project_venv(__file__)
 
 from baxter_pnp.perception_demo import main  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Shared pytest fixtures for ROS integration tests (see tests/ros_graph.py for the harness).
+"""Shared pytest fixtures for ROS integration tests (harness: tests/ros_graph.py, baxter_pnp.sim.launcher).
 
 - ``ros_master`` (session): a private ``rosmaster`` on a free loopback port, with ``/use_sim_time``
   set; ``os.environ`` points at it (ROS_MASTER_URI, ROS_IP=127.0.0.1, no ROS_HOSTNAME) for the whole
@@ -12,7 +12,8 @@ Unit tests that use none of these never start a master.
 """
 import pytest
 
-from ros_graph import FakeBaxterProcess, RosMaster, init_test_node, shutdown_test_node
+from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster
+from ros_graph import init_test_node, shutdown_test_node
 
 
 @pytest.fixture(scope='session')
@@ -35,7 +36,7 @@ def fake_baxter(ros_master, tmp_path_factory):
 
     def start(*args, ready_timeout=30.0):
         log_path = log_dir / f'fake_baxter_{len(processes)}.log'
-        process = FakeBaxterProcess(args, log_path=log_path, ready_timeout=ready_timeout)
+        process = FakeBaxterProcess(ros_master, args, log_path=log_path, ready_timeout=ready_timeout)
         processes.append(process)
         return process.start()
 

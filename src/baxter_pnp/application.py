@@ -83,8 +83,8 @@ class PickApplication:
         self.enabler.enable()
         self.kinematics = ArmKinematics(c.side)
         self.safety = ArmSafety.for_arm(self.kinematics, table_top_z=c.table_top_z, tip_margin=c.tip_margin)
-        self.limb = robot.Limb(c.side, self.safety)
-        self.gripper = robot.Gripper(c.side)
+        self.limb = robot.Limb(c.side, self.safety, max_age=c.stream_max_age)
+        self.gripper = robot.Gripper(c.side, max_age=c.stream_max_age)
         self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
         self.hand_eye = robot.hand_eye_transform(c.side)
         rospy.loginfo('pick: hand-eye from %s: camera at %s m from the gripper tip'
@@ -149,7 +149,7 @@ class PickApplication:
             frame = self.camera.wait_for_frame(after_stamp, timeout=FRAME_TIMEOUT)
         except robot.RobotTimeout as error:
             raise robot.StreamLost(self.camera.image_topic, FRAME_TIMEOUT) from error
-        T_base_gripper = self.limb.endpoint_pose()
+        T_base_gripper = self.limb.endpoint_pose_at(frame.stamp)
         T_base_camera = T_base_gripper @ self.hand_eye.T_gripper_camera
         plane = pick.table_plane_in_camera(T_base_camera, c.table_top_z)
         observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, c.side_length,
@@ -236,9 +236,11 @@ class PickApplication:
     def record(self, step, start, look, T_goal, error_px):
         translation, rotation = pick.pose_error(look.T_base_gripper, T_goal)
         depth = look.target.pose.depth_m
+        block_in_gripper = (invert(look.T_base_gripper) @ look.T_base_block)[:3, 3]
         self.result.history.append(pick.StepRecord(step, rospy.get_time() - start, 1000 * translation,
                                                    np.degrees(rotation), error_px, depth,
-                                                   np.round(look.T_base_block[:3, 3], 5).tolist()))
+                                                   np.round(look.T_base_block[:3, 3], 5).tolist(),
+                                                   np.round(1000 * block_in_gripper, 2).tolist()))
         self.result.steps = step
         self.result.final_error_mm_est = 1000 * translation
         rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base'
@@ -357,6 +359,13 @@ class PickApplication:
             raise PickFailure('gripper', 'the gripper did not open to release the block')
         self.move_to_pose(pick.raised(self.limb.endpoint_pose(), c.lift_height), 'retreat')
         self.result.placed = True
+        look = self.look(after_stamp=rospy.get_time())
+        if look.target is None:
+            rospy.logwarn('pick: the look after placing does not find the block')
+            return
+        self.result.place_error_mm_est = 1000 * float(np.linalg.norm(look.T_base_block[:2, 3] - np.asarray(c.place_xy)))
+        rospy.loginfo('pick: block placed %.1f mm from the requested position (estimated by a look)'
+                      % self.result.place_error_mm_est)
 
     # ================================================================================ motion
     def move_to_pose(self, T_base_gripper, what):
@@ -504,6 +513,9 @@ def main(argv=None):
     try:
         config = build_config(args)
         vision_config = vision.VisionConfig.from_yaml(args.vision_config)
+        if config.colour not in vision_config.colour_names():
+            raise ValueError('colour: %r is not in the vision configuration (known: %s)'
+                             % (config.colour, ', '.join(vision_config.colour_names())))
     except (OSError, ValueError, TypeError) as error:
         rospy.logerr('pick_square: bad configuration: %s' % error)
         return 2

@@ -62,6 +62,7 @@ class PickConfig:
     max_angular_speed: float = 0.5          # IBVS/hybrid: camera angular speed bound (rad/s)
     feature_tolerance_px: float = 2.0       # IBVS/hybrid: converged when the RMS feature error is below this (px)
     timeout: float = 90.0                   # whole run (s of robot time)
+    stream_max_age: float = 2.0             # a robot topic silent for longer (wall s) is lost
 
     @classmethod
     def from_dict(cls, values):
@@ -94,7 +95,7 @@ class PickConfig:
         require(self.mode in MODES, 'mode', 'must be one of %s' % (MODES,))
         for key in ('side_length', 'block_height', 'hover_height', 'tip_margin', 'position_tolerance', 'yaw_tolerance',
                     'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
-                    'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout'):
+                    'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age'):
             value = getattr(self, key)
             require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
                     'must be a positive number')
@@ -131,6 +132,7 @@ class StepRecord:
     error_px: float               # image distance of the block's centre to where it is at the hover pose (px)
     depth_m: float                # estimated depth of the block's top face (m)
     block_base_xyz: List[float]   # estimated block position in base (m)
+    block_in_gripper_mm: List[float]  # estimated block centre in the gripper frame (mm): the thesis's x, y errors
 
 
 @dataclass
@@ -145,6 +147,7 @@ class PickResult:
     failure_reason: Optional[str] = None
     grasp_attempts: int = 0
     placed: Optional[bool] = None
+    place_error_mm_est: Optional[float] = None  # block's distance from place_xy seen after placing (mm)
     total_time_s: float = 0.0                   # robot time of the whole run, place included (s)
     history: List[StepRecord] = field(default_factory=list)
 

@@ -19,6 +19,7 @@ call; motion timing (the joint-space ramp of ``move_to_joint_positions``) follow
 the robot's clock (the simulated clock with the fake Baxter). Frames: ``base`` for poses (4x4, metres),
 radians for joints. Nothing here calls ``rospy.init_node``: the application does.
 """
+import collections
 import errno
 import json
 import threading
@@ -42,6 +43,7 @@ COMMAND_TIMEOUT = 0.2                 # s: the robot drops velocity commands old
 DEFAULT_SPEED_RATIO = 0.3             # the robot's position-mode speed ratio until set_speed_ratio is called
 COMMAND_RATE_HZ = 100.0               # joint command stream rate (as baxter_interface)
 DEFAULT_MAX_AGE = 0.5                 # s: a robot stream older than this is considered lost
+ENDPOINT_HISTORY = 200                # endpoint states kept for endpoint_pose_at (2 s at 100 Hz)
 CAMERA_MODES = ((1280, 800), (960, 600), (640, 400), (480, 300), (384, 240), (320, 200))
 # baxter_interface.Gripper's default parameters (percent), sent with 'configure'.
 GRIPPER_PARAMETERS = {'velocity': 50.0, 'moving_force': 40.0, 'holding_force': 30.0, 'dead_zone': 5.0}
@@ -243,9 +245,10 @@ class ArmJointState(NamedTuple):
 
 
 class EndpointState(NamedTuple):
-    """Endpoint (``<side>_gripper``) pose in base (4x4, m) and twist [v (m/s); w (rad/s)] in base."""
+    """Endpoint (``<side>_gripper``) pose in base (4x4, m), twist [v (m/s); w (rad/s)] in base, stamp (ROS time, s)."""
     T_base_gripper: np.ndarray
     twist: np.ndarray
+    stamp: float = 0.0
 
 
 def _arm_joint_state(joint_names, message):
@@ -277,7 +280,7 @@ def _endpoint_state(message):
         raise ValueError(f'non-finite endpoint state: position {position}, quaternion {quaternion}, twist {twist}')
     if abs(np.linalg.norm(quaternion) - 1.0) > 1e-3:
         raise ValueError(f'endpoint orientation is not a unit quaternion: {quaternion}')
-    return EndpointState(from_xyz_quat(position, quaternion), twist)
+    return EndpointState(from_xyz_quat(position, quaternion), twist, message.header.stamp.to_sec())
 
 
 class Limb:
@@ -301,7 +304,9 @@ class Limb:
         self._ik = rospy.ServiceProxy(self.ik_service_name, srv.SolvePositionIK)
         self._joint_states = CachedTopic('/robot/joint_states', JointState,
                                          lambda message: _arm_joint_state(self.joint_names, message))
-        self._endpoint = CachedTopic(f'{limb}/endpoint_state', msg.EndpointState, _endpoint_state, tcp_nodelay=True)
+        self._endpoint_history = collections.deque(maxlen=ENDPOINT_HISTORY)
+        self._endpoint = CachedTopic(f'{limb}/endpoint_state', msg.EndpointState, self._remember_endpoint,
+                                     tcp_nodelay=True)
         self._command_pub = rospy.Publisher(f'{limb}/joint_command', msg.JointCommand, queue_size=1,
                                             tcp_nodelay=True)
         self._speed_pub = rospy.Publisher(f'{limb}/set_speed_ratio', Float64, queue_size=1, latch=True)
@@ -310,7 +315,28 @@ class Limb:
         self._endpoint.wait(timeout, what='no valid endpoint state')
         _wait_for_subscriber(self._command_pub, timeout)
 
+    def _remember_endpoint(self, message):
+        state = _endpoint_state(message)
+        self._endpoint_history.append(state)
+        return state
+
     # ------------------------------------------------------------------------------ readings
+    def endpoint_pose_at(self, stamp):
+        """T_base_gripper (4x4) at ROS time ``stamp`` (s): the recorded endpoint states around it, the
+        translation interpolated linearly (a camera frame's pose while the arm moves). The latest pose if
+        ``stamp`` is newer than the history, the oldest recorded one if older."""
+        self.require_fresh()
+        history = list(self._endpoint_history)
+        stamps = np.array([state.stamp for state in history])
+        k = int(np.searchsorted(stamps, stamp))
+        if k <= 0 or k >= len(history):
+            return history[min(max(k, 0), len(history) - 1)].T_base_gripper.copy()
+        before, after = history[k - 1], history[k]
+        s = (stamp - before.stamp) / max(after.stamp - before.stamp, 1e-9)
+        T = (before if s < 0.5 else after).T_base_gripper.copy()
+        T[:3, 3] = (1 - s) * before.T_base_gripper[:3, 3] + s * after.T_base_gripper[:3, 3]
+        return T
+
     def require_fresh(self, max_age=None):
         """StreamLost unless joint states and the endpoint state are at most ``max_age`` s old."""
         for stream in (self._joint_states, self._endpoint):

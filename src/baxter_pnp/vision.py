@@ -121,6 +121,7 @@ class VisionConfig:
     min_area_px: float = 100.0
     approx_epsilon_fraction: float = 0.02
     merge_distance_fraction: float = 0.05
+    cut_corner_area_fraction: float = 0.04
     border_margin_px: float = 3.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
@@ -294,6 +295,43 @@ def approximate_polygon(contour, epsilon_fraction):
     return cv2.approxPolyDP(contour, epsilon, True).reshape(-1, 2).astype(float)
 
 
+def remove_cut_corners(vertices, max_area_fraction):
+    """Convex polygon (k, 2) with its cut corners restored, smallest first, down to a triangle.
+
+    An edge is a cut corner (or a spurious vertex on a straight side) when its two neighbouring
+    edges, extended beyond it, meet in a point that adds less than ``max_area_fraction`` of the
+    polygon's area; the edge's two vertices are replaced by that point. Restoring a true corner of
+    a regular polygon adds a sixth of its area (hexagon) or more, and ratios of areas survive any
+    affine view, so a fraction of a few per cent separates the two. Morphology rounds acute corners
+    and a side face can clip a corner of the top face; Douglas-Peucker then keeps both ends of the cut.
+    """
+    vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    while len(vertices) > 3:
+        start, end = vertices, np.roll(vertices, -1, axis=0)
+        d_in = start - np.roll(vertices, 1, axis=0)               # edge k-1, pointing at edge k
+        d_out = end - np.roll(vertices, -2, axis=0)               # edge k+1, pointing back at edge k
+        gap = end - start
+        cross = np.cross(d_in, d_out)
+        converging = np.abs(cross) > 1e-12
+        safe = np.where(converging, cross, 1.0)
+        t = np.cross(gap, d_out) / safe                           # apex = start + t d_in
+        u = np.cross(gap, d_in) / safe                            # apex = end + u d_out
+        apex = start + t[:, None] * d_in
+        added = np.where(converging & (t >= 0) & (u >= 0), 0.5 * np.abs(np.cross(apex - start, gap)), np.inf)
+        k = int(np.argmin(added))
+        if added[k] >= max_area_fraction * abs(_polygon_area(vertices)):
+            break
+        vertices = np.insert(np.delete(vertices, [k, (k + 1) % len(vertices)], axis=0),
+                             min(k, len(vertices) - 2), apex[k], axis=0)
+    return vertices
+
+
+def _polygon_area(vertices):
+    """Signed shoelace area (px^2) of a closed polygon (k, 2)."""
+    x, y = vertices[:, 0], vertices[:, 1]
+    return 0.5 * float(x @ np.roll(y, -1) - np.roll(x, -1) @ y)
+
+
 def merge_close_vertices(vertices, min_distance):
     """Closed polygon (k, 2) with each run of consecutive vertices closer than ``min_distance`` replaced by its mean."""
     vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
@@ -362,47 +400,57 @@ def order_vertices(vertices):
 
 
 # ================================================================================== beyond the thesis
-def isolate_top_face(blob_mask, value, config):
-    """Mask of the block's top face inside ``blob_mask`` (uint8, 255 inside), or None if none is found.
+def isolate_top_face(blob, hsv, config):
+    """Outline (M, 1, 2) int32 of the block's top face within the contour ``blob``, or None if none is found.
 
-    A block's faces share its hue; under light from above the table the top face is the most
-    brightly lit, so in ``value`` (V of the original image, uint8) it is the brightest face and its
-    side faces are darker. The smoothed (``blur_sigma_px``) V of the blob's interior (the blob
-    eroded by 2 px, clear of the pixels it shares with the table) is split in two by Otsu's
-    threshold; while the split is significant (the classes' mean V differ by at least
-    ``min_contrast`` of the bright one's, and the bright class holds at least ``min_face_fraction``
-    of the interior) the bright class is split again, so that a side face lit nearly as brightly as
-    the top goes too. The top face is the largest connected region of the blob above the last
-    significant threshold, or the blob itself when the first split is not significant (one face:
-    the lighting gradient across a face changes its V by a few per cent, a face edge by tens).
-    None when that region's solidity (area / convex-hull area) is below ``min_solidity``.
+    ``hsv``: the original image in HSV (uint8, OpenCV scales), in the coordinates of ``blob``. A
+    block's faces share its colour; under light from above the table the top face is the most
+    brightly lit, so it is the brightest face in V and its side faces are darker. The smoothed
+    (``blur_sigma_px``) V of the blob's interior (eroded by 2 px, clear of the pixels it shares
+    with the table) is split in two by Otsu's threshold; while the split is significant (the
+    classes' means differ by at least ``min_contrast`` of the bright one's, and the bright class
+    holds at least ``min_face_fraction`` of the interior) the bright class is split again, so that a
+    side face lit nearly as brightly as the top goes too. The top face is then the largest connected
+    region of the blob above the last significant threshold whose saturation is at least half the
+    bright class's median: the pixels a side face shares with the (paler but brighter) table are as
+    bright as the top, not as saturated. It is the blob itself when the first split is not
+    significant (one face: the lighting gradient across a face changes its V by a few per cent, a
+    face edge by tens). None when the region's solidity (area / convex-hull area) is below
+    ``min_solidity``.
     """
-    x, y, w, h = cv2.boundingRect(blob_mask)
+    x, y, w, h = cv2.boundingRect(blob)
     box = (slice(y, y + h), slice(x, x + w))
-    blob = blob_mask[box]
-    smoothed = cv2.GaussianBlur(value[box], (0, 0), config.blur_sigma_px)
-    values = smoothed[cv2.erode(blob, _SQUARE5) > 0]
-    minimum_count = config.min_face_fraction * len(values)
+    inside = np.zeros((h, w), np.uint8)
+    cv2.drawContours(inside, [blob], -1, 255, cv2.FILLED, offset=(-x, -y))
+    value = cv2.GaussianBlur(hsv[box][..., 2], (0, 0), config.blur_sigma_px)
+    interior = cv2.erode(inside, _SQUARE5) > 0
+    values = value[interior]
+    minimum_count = max(config.min_face_fraction * len(values), 1)
     threshold = None
     while len(values) >= 2:
         cut, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-        bright = values[values > cut]
-        if len(bright) < max(minimum_count, 1) or len(bright) == len(values):
+        bright = values > cut
+        bright_values = values[bright]
+        if len(bright_values) < minimum_count or len(bright_values) == len(values):
             break
-        bright_mean, dark_mean = float(bright.mean()), float(values[values <= cut].mean())
+        bright_mean, dark_mean = float(bright_values.mean()), float(values[~bright].mean())
         if bright_mean - dark_mean < config.min_contrast * bright_mean:
             break
-        threshold, values = cut, bright
+        threshold, values = cut, bright_values
     if threshold is None:
-        return blob_mask
-    _, top = cv2.threshold(smoothed, threshold, 255, cv2.THRESH_BINARY)
-    contours, _ = cv2.findContours(cv2.bitwise_and(top, blob), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        return blob
+    saturation = hsv[box][..., 1]
+    top_saturation = float(np.median(saturation[interior & (value > threshold)]))
+    _, bright = cv2.threshold(value, threshold, 255, cv2.THRESH_BINARY)
+    _, saturated = cv2.threshold(saturation, 0.5 * top_saturation, 255, cv2.THRESH_BINARY)
+    top = cv2.bitwise_and(cv2.bitwise_and(bright, saturated), inside)
+    contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
+    if not contours:
+        return None
     outline = max(contours, key=cv2.contourArea)
     if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
         return None
-    face = np.zeros_like(blob_mask)
-    cv2.drawContours(face, [outline], -1, 255, cv2.FILLED, offset=(x, y))
-    return face
+    return outline
 
 
 def refine_vertices(image_bgr, coarse_px, config):
@@ -676,7 +724,8 @@ def _merge_boxes(boxes):
 def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
     """Detections whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
     x0, y0, x1, y1 = region
-    hsv = cv2.cvtColor(image_bgr[y0:y1, x0:x1], cv2.COLOR_BGR2HSV)
+    crop = image_bgr[y0:y1, x0:x1]
+    hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
     oversaturated = _oversaturated_hsv(hsv, threshold, config)
     offset = np.array([x0, y0])
     detections = []
@@ -687,32 +736,22 @@ def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
         mask = open_close(mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
-            detection = _polygon_detection(image_bgr, hsv[..., 2], blob, offset, colour, config)
+            outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
+            detection = None if outline is None else _polygon_detection(image_bgr, outline, offset, colour, config)
             if detection is not None and detection.shape in shapes:
                 detections.append(detection)
     return detections
 
 
-def _polygon_detection(image_bgr, value, blob, offset, colour, config):
-    """Detection of one blob (contour in region coordinates, ``offset`` = region origin), or None.
+def _polygon_detection(image_bgr, outline, offset, colour, config):
+    """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None.
 
     ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)).
     """
-    outline = blob
-    if config.top_face.enabled:
-        blob_mask = np.zeros(value.shape, np.uint8)
-        cv2.drawContours(blob_mask, [blob], -1, 255, cv2.FILLED)
-        top = isolate_top_face(blob_mask, value, config.top_face)
-        if top is None:
-            return None
-        if top is not blob_mask:
-            faces = find_blobs(top, config.min_area_px)
-            if not faces:
-                return None
-            outline = max(faces, key=cv2.contourArea)
     hull = cv2.convexHull(outline)
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
     coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
+    coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
     shape = classify_shape(len(coarse))
     if shape is None:
         return None

@@ -12,6 +12,10 @@ to the main loop. Subscriber callbacks only queue work (``self._inbox``) that th
 steps; the IK service uses its own ``ArmKinematics`` (own PyBullet client, own lock) and the last joint
 angles published; the camera services only touch ``CameraBank`` under its lock.
 
+Faults (``scene.faults``, ``sim.faults``; docs/fake_baxter.md "Fault injection") acted out here: camera
+frame drops, latency, stall, blackout and brightness; IK failures and an absent IK service; delayed
+joint commands; the e-stop at a given time. Random decisions draw from generators seeded with ``seed``.
+
 docs/fake_baxter.md lists every topic and service, the options, and how this differs from the
 official Gazebo simulator. Run it with ``rosrun baxter_pnp fake_baxter.py`` or
 ``roslaunch baxter_pnp fake_baxter.launch``.
@@ -42,8 +46,9 @@ from baxter_pnp.kinematics import DEFAULT_URDF, ArmKinematics
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
+from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
-from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, SceneError, load_scene
+from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, SceneError, load_faults, load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, matrix_to_pose_msg, pose_msg_to_matrix
 
@@ -315,8 +320,14 @@ class FakeBaxterNode:
                  open_cameras=(), seed=0):
         self.world = world
         self.image_encoding = image_encoding
-        self._rng = np.random.default_rng(seed)
+        self.faults = world.scene.faults
+        # Independent streams, so that e.g. the IK calls an application makes do not change the image noise.
+        self._noise_rng, self._frame_fault_rng, self._ik_fault_rng = (
+            np.random.default_rng([seed, stream]) for stream in range(3))
         self._inbox = collections.deque()        # callables queued by ROS threads, run by the loop
+        self._delayed_commands = DelayLine(self.faults.joint_command_delay)   # JointCommands not yet applied
+        self._delayed_frames = DelayLine(self.faults.camera.latency)           # (name, Image, CameraInfo) captured
+        self._estop_done = False
         self.robot = RobotEnableState(enabled=enable)
         self.arm = ArmCommander(world, SIDE)
         self.gripper = ElectricGripperProtocol(
@@ -364,7 +375,8 @@ class FakeBaxterNode:
                          queue_size=10)
         rospy.Subscriber(f'{GRIPPER_TOPIC}/command', msg.EndEffectorCommand, queued(self._on_gripper_command),
                          queue_size=10)
-        rospy.Service(IK_SERVICE, srv.SolvePositionIK, self._solve_ik)
+        if not self.faults.ik.absent:
+            rospy.Service(IK_SERVICE, srv.SolvePositionIK, self._solve_ik)
         rospy.Service('/cameras/list', srv.ListCameras, lambda request: srv.ListCamerasResponse(self.cameras.list()))
         rospy.Service('/cameras/open', srv.OpenCamera, self._open_camera)
         rospy.Service('/cameras/close', srv.CloseCamera,
@@ -379,6 +391,9 @@ class FakeBaxterNode:
             while self._inbox:
                 self._inbox.popleft()()
             now = self.world.time
+            for apply_command in self._delayed_commands.due(now):
+                apply_command()
+            self._inject_estop(now)
             if self.arm.tick(now):
                 rospy.logdebug('velocity command timed out: holding position')
             self._publish_due(now)
@@ -397,19 +412,30 @@ class FakeBaxterNode:
         age = _process_age()
         boot = '' if age is None else f' {age:.1f} s after start'
         cameras = [name for name in CAMERA_NAMES if self.cameras.is_open(name)]
-        rospy.loginfo('fake_baxter ready%s: robot %s, cameras open: %s, real-time factor %s', boot,
+        rospy.loginfo('fake_baxter ready%s: robot %s, cameras open: %s, real-time factor %s, faults: %s', boot,
                       'enabled' if self.robot.enabled else 'disabled (publish True on /robot/set_super_enable)',
                       ', '.join(cameras) or 'none',
                       'as fast as possible' if self.pacer.real_time_factor == 0 else
-                      f'{self.pacer.real_time_factor:g}')
+                      f'{self.pacer.real_time_factor:g}', self.faults.summary())
         return publisher
+
+    def _inject_estop(self, now):
+        """The ``estop_at`` fault: stop the robot once, as ``/robot/set_super_stop`` does."""
+        if self.faults.estop_at is not None and not self._estop_done and now >= self.faults.estop_at:
+            self._estop_done = True
+            rospy.logwarn(f'fault injected: robot stopped at {now:.3f} s (estop_at {self.faults.estop_at:g} s)')
+            self._on_stop(None)
 
     def _publish_due(self, now):
         for schedule, publish in self._schedules:
             if schedule.due(now):
                 publish(self._stamp(now))
         for name, cam in self.cameras.due(now):
-            self._publish_camera(name, cam, self._stamp(now))
+            self._capture_camera(name, cam, now)
+        for name, image, info in self._delayed_frames.due(now):
+            if self.cameras.is_open(name):
+                self._image_publishers(name)[0].publish(image)
+                self._image_publishers(name)[1].publish(info)
 
     @staticmethod
     def _stamp(now):
@@ -442,13 +468,17 @@ class FakeBaxterNode:
         except ValueError as error:
             rospy.logerr_throttle_identical(1.0, f'{ARM_TOPIC}/joint_command ignored: {error}')
             return
+        self._delayed_commands.put(self.world.time, lambda: self._apply_joint_command(message.mode, values))
+
+    def _apply_joint_command(self, mode, values):
+        """Execute a validated JointCommand (after the ``joint_command_delay`` fault, if any)."""
         if not self.robot.enabled:
             rospy.logwarn_throttle(2.0, f'{ARM_TOPIC}/joint_command ignored: the robot is not enabled')
             return
-        if message.mode == TORQUE_MODE:
+        if mode == TORQUE_MODE:
             rospy.logwarn_throttle(2.0, f'{ARM_TOPIC}/joint_command: torque mode is not emulated (ignored)')
             return
-        self.arm.command(message.mode, values, self.world.time)
+        self.arm.command(mode, values, self.world.time)
 
     def _on_speed_ratio(self, message):
         if not math.isfinite(message.data):
@@ -562,19 +592,29 @@ class FakeBaxterNode:
             rospy.logwarn(f'/cameras/open {request.name} refused ({errno.errorcode[err]}): {reason}')
         return srv.OpenCameraResponse(err)
 
-    def _publish_camera(self, name, cam, header):
+    def _image_publishers(self, name):
+        """(image, camera_info) publishers of camera ``name``, advertised when first needed."""
         if name not in self._image_pubs:
             self._image_pubs[name] = (rospy.Publisher(f'/cameras/{name}/image', Image, queue_size=2),
                                       rospy.Publisher(f'/cameras/{name}/camera_info', CameraInfo, queue_size=2))
-        image_pub, info_pub = self._image_pubs[name]
-        header.frame_id = name
-        image = self.world.render_camera(name, cam.model, self._rng)
-        image_pub.publish(bgr_to_msg(image, self.image_encoding, header))
-        info_pub.publish(cam.model.to_camera_info(header))
+        return self._image_pubs[name]
+
+    def _capture_camera(self, name, cam, now):
+        """Render the frame due at ``now`` (s) and queue it for publication after the camera latency fault;
+        the frame-drop, stall, blackout and brightness faults apply here."""
+        camera_faults = self.faults.camera
+        if not camera_faults.publishes(now, self._frame_fault_rng.random()):
+            return
+        header = Header(stamp=rospy.Time.from_sec(now), frame_id=name)
+        image = self.world.render_camera(name, cam.model, self._noise_rng, gain=camera_faults.gain(now))
+        self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header),
+                                       cam.model.to_camera_info(header)))
 
     # ------------------------------------------------------------------ IK service
     def _solve_ik(self, request):
-        """SolvePositionIK: one JointState, isValid and result_type per requested pose (see ``ik_stages``)."""
+        """SolvePositionIK: one JointState, isValid and result_type per requested pose (see ``ik_stages``).
+
+        A pose the IK faults fail (``IKFaults.fails``: one draw per pose) is answered like an unreachable one."""
         names = self.arm.joint_names
         current_map = dict(self._current_angles)
         current = np.array([current_map[n] for n in names])
@@ -590,8 +630,12 @@ class FakeBaxterNode:
                 raise rospy.ServiceException(str(error))
             solution, result_type = None, RESULT_INVALID
             T_base_target = self._pose_in_base(pose_stamped)
-            if T_base_target is not None:
-                with self._kinematics_lock:
+            with self._kinematics_lock:
+                fault = self._ik_fault_rng.random()
+                if T_base_target is not None and self.faults.ik.fails(T_base_target[:3, 3], fault):
+                    rospy.loginfo_throttle(1.0, f'{IK_SERVICE}: fault injected, pose at '
+                                                f'{np.round(T_base_target[:3, 3], 3).tolist()} m marked invalid')
+                elif T_base_target is not None:
                     for stage_type, seed in stages:
                         solution = self._kinematics.ik(T_base_target, seed=seed,
                                                        n_random_seeds=0 if seed is not None else IK_MAP_SEEDS)
@@ -633,7 +677,9 @@ def parse_args(argv):
         'A PyBullet "fake Baxter" serving the robot\'s ROS interfaces (SDK 1.2.0) for the left arm, '
         'its gripper, cameras and range sensor, in simulated time.'))
     parser.add_argument('--scene', default=DEFAULT_SCENE_YAML,
-                        help='scene YAML (table, blocks, start pose, camera error); default %(default)s')
+                        help='scene YAML (table, blocks, start pose, camera error, faults); default %(default)s')
+    parser.add_argument('--faults', metavar='FILE',
+                        help="YAML file with a 'faults:' key (as in a scene), replacing the scene's faults")
     parser.add_argument('--enable', action='store_true', help='boot with the robot enabled')
     parser.add_argument('--start-pose', choices=('down', 'angled', 'neutral'),
                         help="left-arm start pose, overriding the scene's 'start'")
@@ -644,10 +690,13 @@ def parse_args(argv):
     parser.add_argument('--open-camera', action='append', type=parse_camera_option, default=[],
                         metavar='NAME:WxH[@FPS]', help='open a camera at boot, e.g. left_hand_camera:640x400@20 '
                                                       '(repeatable, at most two)')
-    parser.add_argument('--seed', type=int, default=0, help='seed of the image noise; default %(default)s')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the image noise and of the random faults; default %(default)s')
     args = parser.parse_args(argv)
     if args.real_time_factor < 0 or not math.isfinite(args.real_time_factor):
         parser.error('--real-time-factor must be >= 0')
+    if args.seed < 0:
+        parser.error('--seed must be >= 0')
     if len({c[0] for c in args.open_camera}) > MAX_OPEN_CAMERAS:
         parser.error(f'at most {MAX_OPEN_CAMERAS} cameras can be open at once')
     return args
@@ -658,6 +707,8 @@ def main(argv=None):
     args = parse_args(rospy.myargv(sys.argv if argv is None else argv)[1:])
     try:
         scene = load_scene(args.scene)
+        if args.faults:
+            scene = scene.with_faults(load_faults(args.faults))
     except (SceneError, OSError, yaml.YAMLError) as error:
         print(f'fake_baxter: error: bad scene: {error}', file=sys.stderr)
         sys.exit(2)

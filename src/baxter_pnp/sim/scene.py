@@ -1,4 +1,4 @@
-"""Scene description of the fake Baxter: table, blocks, start pose, camera error (YAML, validated).
+"""Scene description of the fake Baxter: table, blocks, start pose, camera error, faults (YAML, validated).
 
 Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/ARCHITECTURE.md)::
 
@@ -7,21 +7,27 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
       - {shape: square, side: 0.04, height: 0.02, color: [0.1, 0.7, 0.1], xy: [0.70, 0.25], yaw: 0.4}
     start: down      # 'down' | 'angled' | 'neutral' (config/start_poses.yaml) | {left_s0: ..., ..., left_w2: ...}
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
+    faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
 
-``table``, ``start`` and ``camera_error`` (and each of their keys), an object's ``height`` and
-``yaw`` are optional (the values above are the defaults); an object's ``shape``, ``side``, ``color``
-and ``xy`` are required. Every problem raises ``SceneError`` whose message starts with the key.
+``table``, ``start``, ``camera_error`` and ``faults`` (and each of their keys), an object's ``height`` and
+``yaw`` are optional (the values above are the defaults; no faults by default); an object's ``shape``,
+``side``, ``color`` and ``xy`` are required, and blocks may not overlap. Every problem raises
+``SceneError`` whose message starts with the key.
 """
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import yaml
 
 from baxter_pnp.kinematics import arm_joint_names, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
 from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.sim.faults import (NUDGE_DURATION, OCCLUDER_COLOR, Box, CameraFaults, Faults, GripperFaults,
+                                   IKFaults, Nudge, Occluder, Window)
 from baxter_pnp.transforms import from_xyz_rpy
 
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
@@ -59,6 +65,11 @@ class SceneObject:
         """The block's ``models.PolygonModel``."""
         return model_for(self.shape, self.side, self.height)
 
+    def footprint(self):
+        """(n, 2) vertices (m, base x-y) of the block's outline on the table."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return self.model.vertices[:, :2] @ np.array([[c, s], [-s, c]]) + self.xy
+
 
 @dataclass(frozen=True)
 class CameraError:
@@ -76,22 +87,35 @@ class CameraError:
 
 @dataclass(frozen=True)
 class Scene:
-    """A validated scene. ``start`` is a start-pose name or a dict of the 7 left-arm joint angles (rad)."""
+    """A validated scene. ``start`` is a start-pose name or a dict of the 7 left-arm joint angles (rad);
+    ``faults`` a ``sim.faults.Faults`` (none by default)."""
     table: Table = field(default_factory=Table)
     objects: tuple = ()
     start: object = 'down'
     camera_error: CameraError = field(default_factory=CameraError)
+    faults: Faults = field(default_factory=Faults)
+
+    def __post_init__(self):
+        nudge = self.faults.nudge
+        if nudge is not None and nudge.object >= len(self.objects):
+            raise SceneError(f'faults.nudge.object: {nudge.object} but the scene has {len(self.objects)} object(s)')
 
     @classmethod
     def from_dict(cls, d):
         """Scene from a dictionary (parsed YAML); ``SceneError`` naming the bad key."""
-        d = _mapping(d, 'scene', {'table', 'objects', 'start', 'camera_error'})
+        d = _mapping(d, 'scene', {'table', 'objects', 'start', 'camera_error', 'faults'})
         table = _table(d.get('table', {}))
         objects = d.get('objects', [])
         if not isinstance(objects, list):
             raise SceneError('objects: must be a list')
         parsed = tuple(_object(o, f'objects[{i}]', table) for i, o in enumerate(objects))
-        return cls(table, parsed, _start(d.get('start', 'down')), _camera_error(d.get('camera_error', {})))
+        _check_no_overlap(parsed)
+        return cls(table, parsed, _start(d.get('start', 'down')), _camera_error(d.get('camera_error', {})),
+                   _faults(d.get('faults', {})))
+
+    def with_faults(self, faults):
+        """This scene with ``faults`` (a ``Faults``) instead of its own; ``SceneError`` if they do not fit it."""
+        return dataclasses.replace(self, faults=faults)
 
     def start_positions(self, start_poses_path=None):
         """dict left-arm joint name -> angle (rad) of the start pose (named poses from ``config/start_poses.yaml``)."""
@@ -107,6 +131,17 @@ def load_scene(path=None):
         d = yaml.safe_load(f)
     try:
         return Scene.from_dict(d)
+    except SceneError as error:
+        raise SceneError(f'{path}: {error}') from None
+
+
+def load_faults(path):
+    """``Faults`` of the ``faults:`` key of a YAML file (the same key as in a scene file, nothing else);
+    ``SceneError`` prefixed with the path."""
+    with open(path) as f:
+        d = yaml.safe_load(f)
+    try:
+        return _faults(_mapping(d, 'file', {'faults'}).get('faults', {}))
     except SceneError as error:
         raise SceneError(f'{path}: {error}') from None
 
@@ -129,10 +164,35 @@ def _number(value, key, positive=False):
     return float(value)
 
 
+def _non_negative(value, key):
+    if _number(value, key) < 0:
+        raise SceneError(f'{key}: must be a non-negative number')
+    return float(value)
+
+
+def _probability(value, key):
+    if not 0.0 <= _number(value, key) <= 1.0:
+        raise SceneError(f'{key}: must be a probability in 0..1')
+    return float(value)
+
+
+def _count(value, key):
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise SceneError(f'{key}: must be a non-negative integer')
+    return value
+
+
 def _vector(value, key, length, positive=False):
     if not isinstance(value, (list, tuple)) or len(value) != length:
         raise SceneError(f'{key}: must be a list of {length} numbers')
     return tuple(_number(v, f'{key}[{i}]', positive) for i, v in enumerate(value))
+
+
+def _color(value, key):
+    color = _vector(value, key, 3)
+    if not all(0.0 <= c <= 1.0 for c in color):
+        raise SceneError(f'{key}: RGB components must be in 0..1')
+    return color
 
 
 def _table(d):
@@ -150,15 +210,23 @@ def _object(d, key, table):
             raise SceneError(f'{key}.{required}: missing')
     if d['shape'] not in SHAPES:
         raise SceneError(f'{key}.shape: must be one of {sorted(SHAPES, key=SHAPES.get)}, got {d["shape"]!r}')
-    color = _vector(d['color'], f'{key}.color', 3)
-    if not all(0.0 <= c <= 1.0 for c in color):
-        raise SceneError(f'{key}.color: RGB components must be in 0..1')
+    color = _color(d['color'], f'{key}.color')
     xy = _vector(d['xy'], f'{key}.xy', 2)
     if not table.contains(xy):
         raise SceneError(f'{key}.xy: {list(xy)} is not on the table')
     return SceneObject(d['shape'], _number(d['side'], f'{key}.side', positive=True), color, xy,
                        _number(d.get('height', 0.02), f'{key}.height', positive=True),
                        _number(d.get('yaw', 0.0), f'{key}.yaw'))
+
+
+def _check_no_overlap(objects):
+    """SceneError naming the later of two blocks whose outlines on the table overlap (touching is fine)."""
+    footprints = [obj.footprint().astype(np.float32) for obj in objects]
+    for j in range(len(objects)):
+        for i in range(j):
+            area, _ = cv2.intersectConvexConvex(footprints[i], footprints[j])
+            if area > 1e-7:                                    # m^2 (0.1 mm^2)
+                raise SceneError(f'objects[{j}].xy: the block overlaps objects[{i}] on the table')
 
 
 def _start(value):
@@ -180,3 +248,77 @@ def _camera_error(d):
     return CameraError(_vector(d.get('xyz', (0, 0, 0)), 'camera_error.xyz', 3),
                        _vector(d.get('rpy', (0, 0, 0)), 'camera_error.rpy', 3),
                        _number(d.get('focal_scale', 1.0), 'camera_error.focal_scale', positive=True))
+
+
+# ------------------------------------------------------------------------------------------- faults
+def _faults(d, key='faults'):
+    d = _mapping(d, key, {'camera', 'nudge', 'occluder', 'ik', 'gripper', 'joint_command_delay', 'estop_at'})
+
+    def optional(name, parse):
+        return None if d.get(name) is None else parse(d[name], f'{key}.{name}')
+    return Faults(camera=_camera_faults(d.get('camera', {}), f'{key}.camera'),
+                  nudge=optional('nudge', _nudge),
+                  occluder=optional('occluder', _occluder),
+                  ik=_ik_faults(d.get('ik', {}), f'{key}.ik'),
+                  gripper=_gripper_faults(d.get('gripper', {}), f'{key}.gripper'),
+                  joint_command_delay=_non_negative(d.get('joint_command_delay', 0.0), f'{key}.joint_command_delay'),
+                  estop_at=optional('estop_at', _non_negative))
+
+
+def _required(d, key, names):
+    for name in names:
+        if name not in d:
+            raise SceneError(f'{key}.{name}: missing')
+
+
+def _window(d, key):
+    d = _mapping(d, key, {'at', 'duration'})
+    _required(d, key, ('at', 'duration'))
+    return Window(_non_negative(d['at'], f'{key}.at'), _number(d['duration'], f'{key}.duration', positive=True))
+
+
+def _camera_faults(d, key):
+    d = _mapping(d, key, {'drop_probability', 'latency', 'stall', 'blackout', 'brightness_gain'})
+    return CameraFaults(
+        drop_probability=_probability(d.get('drop_probability', 0.0), f'{key}.drop_probability'),
+        latency=_non_negative(d.get('latency', 0.0), f'{key}.latency'),
+        stall=None if d.get('stall') is None else _window(d['stall'], f'{key}.stall'),
+        blackout=None if d.get('blackout') is None else _window(d['blackout'], f'{key}.blackout'),
+        brightness_gain=_non_negative(d.get('brightness_gain', 1.0), f'{key}.brightness_gain'))
+
+
+def _nudge(d, key):
+    d = _mapping(d, key, {'at', 'offset', 'object', 'duration'})
+    _required(d, key, ('at', 'offset'))
+    return Nudge(_non_negative(d['at'], f'{key}.at'), _vector(d['offset'], f'{key}.offset', 2),
+                 _count(d.get('object', 0), f'{key}.object'),
+                 _non_negative(d.get('duration', NUDGE_DURATION), f'{key}.duration'))
+
+
+def _occluder(d, key):
+    d = _mapping(d, key, {'xy', 'size', 'height', 'yaw', 'color'})
+    _required(d, key, ('xy', 'size', 'height'))
+    return Occluder(_vector(d['xy'], f'{key}.xy', 2), _vector(d['size'], f'{key}.size', 2, positive=True),
+                    _non_negative(d['height'], f'{key}.height'), _number(d.get('yaw', 0.0), f'{key}.yaw'),
+                    _color(d.get('color', OCCLUDER_COLOR), f'{key}.color'))
+
+
+def _ik_faults(d, key):
+    d = _mapping(d, key, {'failure_probability', 'fail_region', 'absent'})
+    region = None
+    if d.get('fail_region') is not None:
+        region_key = f'{key}.fail_region'
+        r = _mapping(d['fail_region'], region_key, {'min', 'max'})
+        _required(r, region_key, ('min', 'max'))
+        region = Box(_vector(r['min'], f'{region_key}.min', 3), _vector(r['max'], f'{region_key}.max', 3))
+        if not all(low <= high for low, high in zip(region.min, region.max)):
+            raise SceneError(f'{region_key}: min must not exceed max on any axis')
+    absent = d.get('absent', False)
+    if not isinstance(absent, bool):
+        raise SceneError(f'{key}.absent: must be true or false')
+    return IKFaults(_probability(d.get('failure_probability', 0.0), f'{key}.failure_probability'), region, absent)
+
+
+def _gripper_faults(d, key):
+    d = _mapping(d, key, {'miss_first'})
+    return GripperFaults(_count(d.get('miss_first', 0), f'{key}.miss_first'))

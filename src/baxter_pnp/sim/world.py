@@ -12,6 +12,10 @@ the motors' large force limit plays the part of Baxter's gravity compensation. G
 is a prismatic position motor with the commanded force and speed, the two geared together like the
 real gripper's single drive; a grasp holds by friction and finger force only (nothing ties the block
 to the gripper).
+
+Faults (``scene.faults``, ``sim.faults``) acted out here: the occluder plate (visual only), the nudge
+(a kinematic slide of a block), and grippers whose first closes miss (the fingers pass through the
+blocks: finger-block collisions are off until the reopened fingers are clear of every block).
 """
 import math
 
@@ -21,6 +25,7 @@ import pybullet as p
 
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import DEFAULT_URDF, NEUTRAL, arm_joint_names, body_indices, link_pose
+from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
 from baxter_pnp.transforms import from_xyz_quat, invert, make_transform
 
 ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
@@ -71,6 +76,9 @@ class SimWorld:
                                 force=ARM_MOTOR_FORCE, physicsClientId=self._client)
         self._make_table(scene.table)
         self._blocks = [self._make_block(obj) for obj in scene.objects]
+        if scene.faults.occluder is not None:
+            self._make_occluder(scene.faults.occluder)
+        self._nudge_start = None     # (position, orientation) of the nudged block when its push began
         self.set_arm_positions('left', scene.start_positions())
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
@@ -119,6 +127,15 @@ class SimWorld:
         self._place(body, model.height, obj.xy, obj.yaw)
         return body
 
+    def _make_occluder(self, occluder):
+        """The occluder plate: a visual shape without collision shape (cameras see it, nothing touches it)."""
+        half = [occluder.size[0] / 2, occluder.size[1] / 2, OCCLUDER_THICKNESS / 2]
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[*occluder.color, 1.0],
+                                     physicsClientId=self._client)
+        centre = [*occluder.xy, self.scene.table.top_z + occluder.height + OCCLUDER_THICKNESS / 2]
+        return p.createMultiBody(0.0, -1, visual, centre, p.getQuaternionFromEuler([0, 0, occluder.yaw]),
+                                 physicsClientId=self._client)
+
     def _place(self, body, height, xy, yaw):
         com = [xy[0], xy[1], self.scene.table.top_z + height / 2]
         p.resetBasePositionAndOrientation(body, com, p.getQuaternionFromEuler([0, 0, yaw]),
@@ -128,13 +145,29 @@ class SimWorld:
     # ------------------------------------------------------------------------------------ clock
     def step(self, n=1):
         """Advance ``n`` physics steps of ``time_step`` seconds (arm set-points, motors, contacts)."""
+        nudge = self.scene.faults.nudge
         for _ in range(int(n)):
             for arm in self._arms.values():
                 arm.update(self.time_step)
+            if nudge is not None and nudge.moves_during(self.time, self.time + self.time_step):
+                self._push(nudge)
             p.stepSimulation(physicsClientId=self._client)
             for gripper in self._grippers.values():
                 gripper.update(self.time_step)
             self.time += self.time_step
+
+    def _push(self, nudge):
+        """Slide the nudged block over the coming step: put it where the push has brought it now and give it
+        the velocity that reaches the next position (same height and orientation as when the push began)."""
+        body = self._blocks[nudge.object]
+        if self._nudge_start is None:
+            self._nudge_start = p.getBasePositionAndOrientation(body, physicsClientId=self._client)
+        (x, y, z), orientation = self._nudge_start
+        now, after = nudge.displacement(self.time), nudge.displacement(self.time + self.time_step)
+        p.resetBasePositionAndOrientation(body, [x + now[0], y + now[1], z], orientation,
+                                          physicsClientId=self._client)
+        velocity = (after - now) / self.time_step
+        p.resetBaseVelocity(body, [velocity[0], velocity[1], 0.0], [0.0, 0.0, 0.0], physicsClientId=self._client)
 
     # ------------------------------------------------------------------------------------ joints
     def joint_names(self):
@@ -223,14 +256,32 @@ class SimWorld:
             return math.inf
         return min_range + hit[2] * (max_range - min_range)
 
-    def render_camera(self, link, camera, rng=None):
+    def render_camera(self, link, camera, rng=None, gain=1.0):
         """uint8 BGR (H, W, 3) image of ``camera`` (a ``CameraModel``) mounted at ``link``'s optical frame.
 
         The true camera is the published one perturbed by ``scene.camera_error`` (mount offset, focal
         scale). It is rendered as an ideal pinhole with a margin (PyBullet TinyRenderer), warped with
-        the true camera's distortion (``CameraModel.rendering_maps``) and given Gaussian noise of
+        the true camera's distortion (``CameraModel.rendering_maps``), its intensities multiplied by
+        ``gain`` (a lighting change; 0 = black, nothing is rendered) and given Gaussian noise of
         ``IMAGE_NOISE_STD`` grey levels drawn from ``rng`` (no noise if ``rng`` is None).
         """
+        if gain > 0:
+            image = self._render(link, camera)
+        else:
+            image = np.zeros((camera.height, camera.width, 3), np.uint8)
+        if rng is None and gain == 1.0:
+            return image
+        value = image.astype(np.float32)
+        value *= np.float32(gain)
+        if rng is not None:
+            noise = rng.standard_normal(image.shape, dtype=np.float32)
+            noise *= IMAGE_NOISE_STD
+            value += noise
+        value += np.float32(0.5)
+        return np.clip(value, 0, 255, out=value).astype(np.uint8)
+
+    def _render(self, link, camera):
+        """Noise-free uint8 BGR image of ``camera`` at ``link`` (see ``render_camera``)."""
         error = self.scene.camera_error
         K_true = camera.K.copy()
         K_true[0, 0] *= error.focal_scale
@@ -243,14 +294,7 @@ class SimWorld:
             ideal.width, ideal.height, view.T.ravel().tolist(), _opengl_projection(ideal).T.ravel().tolist(),
             renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self._client, **LIGHT)
         bgr = np.ascontiguousarray(np.reshape(rgba, (ideal.height, ideal.width, 4))[:, :, 2::-1])
-        image = cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_REPLICATE)
-        if rng is not None:
-            noisy = rng.standard_normal(image.shape, dtype=np.float32)
-            noisy *= IMAGE_NOISE_STD
-            noisy += image + np.float32(0.5)
-            image = np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)
-        return image
+        return cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ideal_camera(self, true_camera):
         """Pinhole camera (no distortion, the true focal lengths) whose image covers every ray of ``true_camera``."""
@@ -360,7 +404,11 @@ def profile_step(position, velocity, target, max_speed, acceleration, dt):
 
 
 class _Gripper:
-    """One electric gripper: two prismatic fingers, each a force- and speed-limited position motor, geared together."""
+    """One electric gripper: two prismatic fingers, each a force- and speed-limited position motor, geared together.
+
+    Close attempts (a closing command after a non-closing one) are counted; those that
+    ``scene.faults.gripper`` says must miss turn the finger-block collisions off.
+    """
 
     def __init__(self, world, side):
         self._world = world
@@ -373,6 +421,9 @@ class _Gripper:
         self.target = FINGER_TRAVEL
         self.command_time = -math.inf
         self.closing = False
+        self.faults = world.scene.faults.gripper
+        self.close_attempts = 0
+        self.phantom = False                    # the fingers pass through the blocks (a close that must miss)
         self.gripping = False                   # latched: set when the fingers stop on a block, kept while they hold it
         self.speed = 0.0                        # m/s, low-passed opening speed of the fingers
         for index, sign in zip(self.indices, self.signs):
@@ -387,7 +438,11 @@ class _Gripper:
     def command(self, position_percent, force_percent, velocity_percent):
         world = self._world
         self.target = float(np.clip(position_percent, 0.0, 100.0)) / 100.0 * FINGER_TRAVEL
-        self.closing = self.target < self._opening()[0].mean()
+        was_closing, self.closing = self.closing, self.target < self._opening()[0].mean()
+        if self.closing and not was_closing:
+            if self.faults.misses(self.close_attempts):
+                self._collide_with_blocks(False)
+            self.close_attempts += 1
         self.gripping = self.gripping and self.closing
         self.command_time = world.time
         force = float(np.clip(force_percent, 0.0, 100.0)) / 100.0 * GRIPPER_MAX_FORCE
@@ -397,9 +452,28 @@ class _Gripper:
                                     force=force, maxVelocity=speed, physicsClientId=world._client)
 
     def update(self, dt):
-        """Low-pass the fingers' opening speed (time constant ``GRIPPER_SPEED_FILTER``) after a step of ``dt`` s."""
+        """Low-pass the fingers' opening speed (time constant ``GRIPPER_SPEED_FILTER``) after a step of ``dt`` s;
+        after a missed close, collide with the blocks again once the reopening fingers are clear of them."""
         alpha = dt / (GRIPPER_SPEED_FILTER + dt)
         self.speed += alpha * (self._opening()[1].mean() - self.speed)
+        if self.phantom and not self.closing and not self._inside_a_block():
+            self._collide_with_blocks(True)
+
+    def _finger_links(self):
+        return sorted(self.contact_links[0] | self.contact_links[1])
+
+    def _collide_with_blocks(self, enable):
+        world = self._world
+        for block in world._blocks:
+            for link in self._finger_links():
+                p.setCollisionFilterPair(world._robot, block, link, -1, int(enable), physicsClientId=world._client)
+        self.phantom = not enable
+
+    def _inside_a_block(self):
+        """True if a finger overlaps or touches a block (collision filters do not apply to this query)."""
+        world = self._world
+        return any(p.getClosestPoints(world._robot, block, 0.0, linkIndexA=link, physicsClientId=world._client)
+                   for block in world._blocks for link in self._finger_links())
 
     def _opening(self):
         """(opening (2,) m, opening speed (2,) m/s, squeeze force (2,) N) of the two fingers."""

@@ -29,6 +29,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
 from baxter_pnp import perception, pick, robot, servo, vision
+from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.runtime import PACKAGE_ROOT
@@ -86,6 +87,10 @@ class PickApplication:
         self.limb = robot.Limb(c.side, self.safety, max_age=c.stream_max_age)
         self.gripper = robot.Gripper(c.side, max_age=c.stream_max_age)
         self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
+        self.calibrated_camera = None
+        if c.camera_calibration:
+            self.calibrated_camera = CameraModel.from_yaml(c.camera_calibration).scaled(*c.resolution)
+            rospy.loginfo('pick: camera model from %s instead of camera_info' % c.camera_calibration)
         self.hand_eye = robot.hand_eye_transform(c.side)
         rospy.loginfo('pick: hand-eye from %s: camera at %s m from the gripper tip'
                       % (self.hand_eye.source, np.round(self.hand_eye.T_gripper_camera[:3, 3], 4).tolist()))
@@ -149,6 +154,8 @@ class PickApplication:
             frame = self.camera.wait_for_frame(after_stamp, timeout=FRAME_TIMEOUT)
         except robot.RobotTimeout as error:
             raise robot.StreamLost(self.camera.image_topic, FRAME_TIMEOUT) from error
+        if self.calibrated_camera is not None:
+            frame = frame._replace(camera=self.calibrated_camera)
         T_base_gripper = self.limb.endpoint_pose_at(frame.stamp)
         T_base_camera = T_base_gripper @ self.hand_eye.T_gripper_camera
         plane = pick.table_plane_in_camera(T_base_camera, c.table_top_z)
@@ -478,6 +485,8 @@ def parse_args(argv):
     parser.add_argument('--start-pose', help='start pose name in config/start_poses.yaml (down, angled)')
     parser.add_argument('--table-top-z', type=float, help='table top height in base (m)')
     parser.add_argument('--estimator', choices=['sqp', 'ippe', 'sqpnp'])
+    parser.add_argument('--camera-calibration', metavar='YAML',
+                        help="camera calibration to use instead of the robot's camera_info")
     parser.add_argument('--speed-ratio', type=float, help='arm speed ratio (0, 1]')
     parser.add_argument('--place', metavar='X,Y', help='place the block at this table position (base, m)')
     parser.add_argument('--result-json', metavar='FILE', help='write the result JSON here')
@@ -496,7 +505,7 @@ def build_config(args):
         if rospy.has_param('~' + name):
             values[name] = rospy.get_param('~' + name)
     for name in ('mode', 'side', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'table_top_z',
-                 'estimator', 'speed_ratio'):
+                 'estimator', 'speed_ratio', 'camera_calibration'):
         if getattr(args, name) is not None:
             values[name] = getattr(args, name)
     if args.place:

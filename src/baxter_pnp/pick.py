@@ -6,8 +6,8 @@ camera's optical frame), ``block`` (docs/ARCHITECTURE.md: origin at the top-face
 Metres, radians, pixels.
 
 The approach ends at the *hover* pose: the gripper centred over the block, fingers pointing down,
-aligned to the block's faces, ``hover_height`` above its top face. From there the arm descends to
-the *grasp* pose (fingertips ``grasp_depth`` below the top face) and closes.
+aligned to the block's faces, ``hover_height`` above the *grasp* pose (fingertips ``grasp_depth``
+below the top face), to which the arm then descends and closes.
 """
 import math
 from dataclasses import asdict, dataclass, field, fields
@@ -38,7 +38,7 @@ class PickConfig:
     table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
     tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
                                             # paddles reach 3.5 mm beyond the tip plane
-    hover_height: float = 0.06              # fingertips above the block's top face at the pre-grasp pose (m)
+    hover_height: float = 0.06              # the pre-grasp (hover) pose is this far above the grasp pose (m)
     grasp_depth: float = 0.012              # fingertips below the top face when closing (m)
     position_tolerance: float = 0.002       # pre-grasp reached when the estimated error is below this (m) ...
     yaw_tolerance: float = math.radians(2.0)    # ... and the orientation error below this (rad)
@@ -57,6 +57,8 @@ class PickConfig:
     resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
     fps: int = 20                           # hand camera rate (Hz)
     estimator: str = 'sqp'                  # pose estimator: sqp | ippe | sqpnp
+    camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
+                                            # camera_info; scaled to the camera mode if calibrated at another size
     gain: List[float] = field(default_factory=lambda: [1.5, 0.4, 10.0])  # IBVS/hybrid adaptive gain (l0, linf, l0')
     max_linear_speed: float = 0.08          # IBVS/hybrid: camera speed bound (m/s)
     max_angular_speed: float = 0.5          # IBVS/hybrid: camera angular speed bound (rad/s)

@@ -1,0 +1,117 @@
+"""The pure pick-task layer (pick.py): configuration, geometry, servo targets, features."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from baxter_pnp import models, pick, servo
+from baxter_pnp.camera import load_default_camera
+from baxter_pnp.transforms import invert, make_transform, transform_points
+
+# The hand camera in the gripper frame (left_gripper -> left_hand_camera, baxter_kinematics.md §2).
+T_GRIPPER_CAMERA = make_transform(Rotation.from_euler('z', -np.pi / 2), (0.03825, 0.012, -0.142345))
+CAMERA = load_default_camera().scaled(640, 400)
+
+
+def block_at(x, y, yaw, table_top_z=-0.15, height=0.02):
+    return make_transform(Rotation.from_euler('z', yaw), (x, y, table_top_z + height))
+
+
+def gripper_down_at(x, y, z, yaw=0.0):
+    return make_transform(Rotation.from_euler('z', yaw) * Rotation.from_euler('x', np.pi), (x, y, z))
+
+
+def test_config_validation_names_the_key():
+    assert pick.PickConfig.from_dict({'mode': 'ibvs'}).mode == 'ibvs'
+    for values, key in (({'mode': 'teleport'}, 'mode'), ({'step_fraction': 0.0}, 'step_fraction'),
+                        ({'side_length': -1}, 'side_length'), ({'grasp_depth': 0.05}, 'grasp_depth'),
+                        ({'place_xy': [0.5]}, 'place_xy'), ({'gain': [0.1, 1.0, 3]}, 'gain'),
+                        ({'colur': 'green'}, 'colur')):
+        with pytest.raises(ValueError, match=key):
+            pick.PickConfig.from_dict(values)
+
+
+def test_table_plane_in_camera_contains_table_points():
+    T_base_camera = gripper_down_at(0.6, 0.2, 0.3) @ T_GRIPPER_CAMERA
+    plane = pick.table_plane_in_camera(T_base_camera, -0.15)
+    table_points_base = np.array([[0.5, 0.1, -0.15], [0.8, 0.4, -0.15], [0.65, 0.2, -0.15]])
+    table_points_camera = transform_points(invert(T_base_camera), table_points_base)
+    np.testing.assert_allclose(table_points_camera @ plane.normal, plane.offset, atol=1e-12)
+    assert plane.normal[2] < -0.99      # camera looks down: the table's up normal points back at the camera
+
+
+def test_hover_and_grasp_poses_centre_and_align_the_gripper():
+    config = pick.PickConfig()
+    T_base_block = block_at(0.7, 0.25, 0.4)
+    T_hover = pick.hover_pose(T_base_block, config, gripper_down_at(0.65, 0.25, 0.14))
+    T_grasp = pick.grasp_pose(T_base_block, config, T_hover)
+    np.testing.assert_allclose(T_hover[:2, 3], [0.7, 0.25], atol=1e-12)
+    assert T_hover[2, 3] == pytest.approx(-0.13 - config.grasp_depth + config.hover_height)
+    assert T_grasp[2, 3] == pytest.approx(-0.13 - config.grasp_depth)
+    assert T_hover[2, 2] == pytest.approx(-1.0)                       # fingers point down
+    closing_axis = T_hover[:3, 1]                                        # fingers close along gripper y
+    block_faces = [T_base_block[:3, 0], T_base_block[:3, 1]]
+    assert max(abs(closing_axis @ f) for f in block_faces) == pytest.approx(1.0)
+
+
+def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():
+    config = pick.PickConfig()
+    T_base_block = block_at(0.7, 0.25, 0.0)
+    T_goal = pick.hover_pose(T_base_block, config, gripper_down_at(0.7, 0.25, 0.14))
+    far = gripper_down_at(0.7, 0.25, 0.14)
+    step = pick.pbvs_target(far, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+    before, _ = pick.pose_error(far, T_goal)
+    after, _ = pick.pose_error(step, T_goal)
+    assert after == pytest.approx((1 - config.step_fraction) * before, rel=1e-6)
+    near = T_goal.copy()
+    near[0, 3] += 0.005
+    assert pick.pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA),
+                           T_goal)[0] < 1e-9
+    assert pick.converged(T_goal, T_goal, config) and not pick.converged(near, T_goal, config)
+
+
+def test_place_pose_puts_the_block_bottom_at_the_requested_height():
+    config = pick.PickConfig()
+    T_holding = gripper_down_at(0.7, 0.25, -0.04)
+    T_gripper_block = make_transform(Rotation.from_euler('x', np.pi), (0.001, -0.002, config.grasp_depth))
+    T_place = pick.place_pose(T_holding, T_gripper_block, (0.6, 0.1), config, 0.004)
+    T_base_block = T_place @ T_gripper_block
+    np.testing.assert_allclose(T_base_block[:2, 3], [0.6, 0.1], atol=1e-12)
+    assert T_base_block[2, 3] == pytest.approx(config.table_top_z + config.block_height + 0.004)
+    np.testing.assert_allclose(T_place[:3, :3], T_holding[:3, :3])
+
+
+def test_measured_features_follow_the_model_order():
+    model = models.model_for('square', 0.04)
+    T_camera_block = make_transform(Rotation.from_euler('xyz', [np.pi + 0.1, 0.05, 0.3]), (0.02, -0.01, 0.25))
+    exact, depths = pick.normalised(transform_points(T_camera_block, model.vertices))
+    shuffled = exact[[2, 0, 3, 1]]
+    features, Z = pick.measured_features(shuffled, T_camera_block, model)
+    np.testing.assert_allclose(features, exact)
+    np.testing.assert_allclose(Z, depths)
+
+
+@pytest.mark.parametrize('mode', ['ibvs', 'hybrid'])
+def test_servo_twist_drives_a_free_camera_to_the_goal(mode):
+    """Integrate the camera twist of each law (40 ms steps, true pose as the 'estimate'): the features converge."""
+    config = pick.PickConfig()
+    model = config.model
+    T_camera_goal_block = make_transform(Rotation.from_euler('x', np.pi), (0.0, 0.03, 0.19))
+    T_camera_block = make_transform(Rotation.from_euler('xyz', [np.pi - 0.2, 0.15, 0.6]), (0.08, -0.05, 0.4))
+    gain = pick.make_gain(config)
+    errors = []
+    for _ in range(400):
+        vertices_xy, _ = pick.normalised(transform_points(T_camera_block, model.vertices))
+        twist, error = pick.servo_twist(mode, T_camera_block, T_camera_goal_block, vertices_xy, model, gain)
+        errors.append(error)
+        twist = pick.bounded_twist(twist, config.max_linear_speed, config.max_angular_speed)
+        T_world_camera = servo.integrate_twist(np.eye(4), twist, 0.04)
+        T_camera_block = invert(T_world_camera) @ T_camera_block
+    assert errors[-1] * CAMERA.fx < 0.5 and errors[-1] < 1e-3 * errors[0]
+    np.testing.assert_allclose(T_camera_block, T_camera_goal_block, atol=1e-3)
+
+
+def test_bounded_twist_keeps_direction():
+    twist = np.array([0.3, 0.0, 0.4, 0.0, 0.0, 2.0])
+    bounded = pick.bounded_twist(twist, 0.1, 0.5)
+    assert np.linalg.norm(bounded[:3]) <= 0.1 + 1e-12 and np.linalg.norm(bounded[3:]) <= 0.5 + 1e-12
+    np.testing.assert_allclose(bounded / np.linalg.norm(bounded), twist / np.linalg.norm(twist))

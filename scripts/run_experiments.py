@@ -1,9 +1,11 @@
 #!/usr/bin/python3
 """Reproduce the thesis's chapter 5 experiments (depth, reach) on the fake Baxter (see docs/experiments.md)."""
-from baxter_pnp.runtime import use_project_venv
-use_project_venv(__file__)
+import os
+import sys
 
-import sys  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.pardir, 'src'))  # a checkout
+from baxter_pnp.runtime import use_project_venv  # noqa: E402
+use_project_venv(__file__)
 
 from baxter_pnp.experiments import main  # noqa: E402
 

@@ -243,13 +243,18 @@ class TestCameraAndSceneFaults:
         dropped = 1.0 - len(stamps) / len(expected)
         print(f'\ndropped {dropped:.3f} of {len(expected)} frames (drop_probability 0.25)')
         assert dropped == pytest.approx(0.25, abs=0.1)
+        # Reproducible: frame k (the only camera, opened at boot) takes draw k of the frame-fault stream of --seed 3.
+        draws = np.random.default_rng([3, 1]).random(len(grid) + round(grid[0] / period))
+        predicted = [t for t in grid if run.scene.faults.camera.publishes(t, draws[round(t / period)])]
+        np.testing.assert_allclose(stamps, predicted, atol=1e-6)
 
     def test_latency_between_capture_stamp_and_clock(self, run):
         lag = np.array([arrival - stamp for _, stamp, arrival, _ in run.frames])
         print(f'\nimage stamp lag behind /clock: median {np.median(lag):.4f} s, range {lag.min():.4f}..{lag.max():.4f}')
-        # This process's /clock may trail the images by a few steps when it is busy: hence the quantiles.
-        assert np.percentile(lag, 10) > 0.19 and np.percentile(lag, 90) < 0.21
-        assert lag.min() > 0.1 and lag.max() < 0.3
+        # This process's /clock may trail the images by a few steps when it is busy (a loaded CI machine):
+        # hence the median and a lower quantile; the late tail only measures this process's delivery delay.
+        assert 0.195 < np.median(lag) < 0.21 and np.percentile(lag, 10) > 0.19
+        assert lag.min() > 0.1 and lag.max() < 0.4
 
     def test_stall_and_blackout_windows(self, run):
         stamps = np.array([f[1] for f in run.frames])
@@ -299,7 +304,7 @@ class TestCameraAndSceneFaults:
 
 # ============================================================================ IK, command delay, gripper
 ROBOT_FAULTS = {
-    'ik': {'failure_probability': 0.3, 'fail_region': {'min': [0.75, -0.1, -0.3], 'max': [1.2, 0.6, 0.3]}},
+    'ik': {'failure_probability': 0.3, 'fail_region': {'min': [0.4, -0.3, -0.3], 'max': [1.3, 0.9, 0.7]}},
     'gripper': {'miss_first': 1},
     'joint_command_delay': 0.2,
 }
@@ -373,7 +378,8 @@ class TestRobotFaults:
         T_grasp = np.eye(4)
         T_grasp[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.diag([1.0, -1.0, -1.0])
         T_grasp[:3, 3] = T_block[:3, 3] + [0.0, 0.0, -0.012]
-        limb = Limb('left', ArmSafety.for_arm(kin, tip_margin=0.0))     # the grasp pose is 8 mm above the table
+        # The grasp pose is 8 mm above the table; the wrist may turn far to align the fingers with the block.
+        limb = Limb('left', ArmSafety.for_arm(kin, tip_margin=0.0, max_joint_step=np.pi))
         limb.set_speed_ratio(1.0)
         gripper = Gripper('left')
         assert gripper.open(block=True)

@@ -13,7 +13,7 @@ from baxter_pnp.camera import load_default_camera
 from baxter_pnp.transforms import make_transform
 
 GREEN = (40, 170, 40)
-COLOURS_BGR = {'green': GREEN, 'red': (40, 40, 200), 'blue': (200, 70, 30), 'yellow': (30, 200, 220)}
+COLOURS_BGR = {'green': GREEN, 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}   # the benchmark's
 
 
 @pytest.fixture(scope='module')
@@ -132,6 +132,19 @@ def test_merge_close_vertices():
     assert len(vision.merge_close_vertices(square, 0.5)) == 5
 
 
+def test_cut_corners_are_restored_and_true_corners_kept():
+    square = np.array([[0, 0], [100, 0], [100, 100], [6, 100], [0, 94]], float)          # one corner cut
+    np.testing.assert_allclose(vision.remove_cut_corners(square, 0.04), [[0, 0], [100, 0], [100, 100], [0, 100]],
+                               atol=1e-9)
+    on_a_side = np.array([[0, 0], [50, -0.5], [100, 0], [100, 100], [0, 100]], float)    # spurious vertex
+    assert len(vision.remove_cut_corners(on_a_side, 0.04)) == 4
+    angles = np.arange(6) * np.pi / 3
+    hexagon = 50 * np.column_stack([np.cos(angles), 0.6 * np.sin(angles)])                # squashed: a tilted view
+    np.testing.assert_array_equal(vision.remove_cut_corners(hexagon, 0.04), hexagon)
+    triangle = np.array([[0, 0], [100, 0], [50, 80]], float)
+    np.testing.assert_array_equal(vision.remove_cut_corners(triangle, 0.5), triangle)    # never below 3 vertices
+
+
 def test_vertex_order_and_classification():
     rng = np.random.default_rng(0)
     polygon = np.array([[10, 0], [0, 10], [-10, 0], [0, -10]], float) + [50, 60]
@@ -161,9 +174,10 @@ def test_top_face_isolation_at_30_degrees(camera, config):
     detections = vision.detect(image, config)
     assert len(detections) == 1 and len(detections[0].vertices_px) == 4
     assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).max() < 0.5
-    # the thesis pipeline alone sees the side faces as part of the square
+    # the thesis pipeline alone takes the side faces for part of the square: wrong polygon or corners pixels off
     plain = dataclasses.replace(config, top_face=dataclasses.replace(config.top_face, enabled=False))
-    assert [len(d.vertices_px) for d in vision.detect(image, plain)] != [4]
+    [outline] = vision.detect(image, plain)
+    assert len(outline.vertices_px) != 4 or vertex_errors(outline.vertices_px, truths[0]['vertices_px']).max() > 3.0
 
 
 def test_subpixel_vertex_accuracy_on_random_views(camera, config):
@@ -188,6 +202,53 @@ def test_subpixel_vertex_accuracy_on_random_views(camera, config):
     assert np.median(errors) <= 0.15
     assert np.percentile(errors, 90) <= 0.6
     assert np.median(coarse_errors) > 3 * np.median(errors)             # the refinement is what gets there
+
+
+# Views where the previous pipeline failed (perception benchmark, seed 1): a dark side face, same hue as the
+# top, merged with it (wrong shape), or a side face thinner than the previous split could see.
+# (shape, side m, colour, rotation vector of T_camera_block, its translation m)
+SIDE_FACE_VIEWS = [
+    ('pentagon', 0.0321, 'blue', [-0.21972, -2.79245, -0.36780], [-0.12148, 0.08215, 0.20903]),   # seen as a hexagon
+    ('triangle', 0.0365, 'blue', [-1.47063, 2.65387, -0.19294], [-0.05004, -0.08190, 0.22146]),   # ... as a square
+    ('square', 0.0369, 'red', [-2.39328, -1.47663, 0.34447], [-0.03020, 0.04292, 0.26612]),       # ... as a pentagon
+    ('triangle', 0.0356, 'green', [2.48702, -0.98596, 0.62654], [0.09720, -0.11644, 0.36210]),    # ... as a pentagon
+    ('square', 0.0400, 'green', [2.82255, -1.22082, -0.54384], [0.09988, 0.03346, 0.20840]),      # 7 px side face kept
+]
+# Near face-on views slightly off-centre (where the servo ends): a 1-2.5 px side face along one or two
+# edges, which the previous refinement took for part of the top face (those edges 1-2.5 px out). The
+# darkening of such a face is assumed, not seen (``side_face_darkening``), hence a few tenths of a pixel.
+THIN_SIDE_FACE_VIEWS = [
+    ('square', 0.0400, 'green', [-2.75443, 1.38416, -0.11717], [-0.05498, 0.00507, 0.17122]),     # tilt 5 deg
+    ('pentagon', 0.0370, 'blue', [0.34923, -2.85461, 0.08132], [0.01732, -0.00806, 0.16009]),     # tilt 15 deg
+    ('hexagon', 0.0593, 'blue', [-0.82338, 3.01286, 0.06911], [0.06997, -0.00772, 0.23794]),      # tilt 3 deg
+]
+
+
+def _render_view(camera, view, seed):
+    shape, side, colour, rotvec, position = view
+    spec = synthetic.BlockSpec(shape, side, 0.02, COLOURS_BGR[colour])
+    T = make_transform(Rotation.from_rotvec(rotvec), position)
+    image, truths = synthetic.render_block_scene(camera, [(spec, T)], np.random.default_rng(seed))
+    return image, truths[0]['vertices_px']
+
+
+@pytest.mark.parametrize('view', SIDE_FACE_VIEWS, ids=lambda v: f'{v[0]}-{v[2]}')
+def test_top_face_is_split_from_darker_side_faces(camera, config, view):
+    for seed in (21, 22, 23, 24):            # the previous pipeline failed each view with one of these at least
+        image, truth = _render_view(camera, view, seed)
+        detections = vision.detect(image, config, colours=[view[2]])
+        assert [d.shape for d in detections] == [view[0]], seed
+        errors = vertex_errors(detections[0].vertices_px, truth)
+        assert errors.mean() < 0.4 and errors.max() < 1.0, (seed, errors)
+
+
+@pytest.mark.parametrize('view', THIN_SIDE_FACE_VIEWS, ids=lambda v: f'{v[0]}-{v[2]}')
+def test_thin_side_face_does_not_pull_an_edge_out(camera, config, view):
+    for seed in (31, 32):
+        image, truth = _render_view(camera, view, seed)
+        [detection] = vision.detect(image, config, colours=[view[2]])
+        errors = vertex_errors(detection.vertices_px, truth)
+        assert errors.mean() < 0.35 and errors.max() < 0.8, errors
 
 
 def test_roi_search_gives_the_full_frame_result(camera, config):

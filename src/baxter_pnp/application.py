@@ -38,7 +38,6 @@ from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
 
 DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
 SETTLE_TOLERANCE = 0.003        # rad: a position move counts as arrived (and the arm as still) within this
-FRAME_TIMEOUT = 3.0             # s (wall): a camera frame must come within this
 
 
 class PickFailure(RuntimeError):
@@ -56,6 +55,34 @@ class Look(NamedTuple):
     T_base_camera: np.ndarray
     target: Optional[perception.BlockObservation]
     T_base_block: Optional[np.ndarray]
+
+
+class RobotRestarted(robot.RobotError):
+    """The robot came back from a restart (disabled, clock reset): the run can resume after re-enabling."""
+
+
+class RunClock:
+    """Robot time (s) elapsed since the run started, continuous across a robot restart (a restarted fake
+    Baxter's simulated clock starts again from zero: the elapsed time carries on from where it was)."""
+
+    def __init__(self):
+        self.start = self.last = rospy.get_time()
+        self.offset = 0.0
+        self._jumps_seen = self.jumps = 0
+
+    def elapsed(self):
+        now = rospy.get_time()
+        if now < self.last:
+            self.offset += self.last - now
+            self.jumps += 1
+        self.last = now
+        return now + self.offset - self.start
+
+    def restarted(self):
+        """True once after each time the robot's clock went back (a restart), as seen by ``elapsed``."""
+        self.elapsed()
+        jumped, self._jumps_seen = self.jumps > self._jumps_seen, self.jumps
+        return jumped
 
 
 class PickApplication:
@@ -100,16 +127,15 @@ class PickApplication:
     def run(self):
         """Connect, pick (and place); never raises for robot faults: they end in ``result.failure_reason``."""
         c = self.config
-        start = None
+        self.clock = None
         try:
             self.connect()
             if not self.gripper.open(block=True, timeout=3.0):
                 raise PickFailure('gripper', 'the gripper did not open')
             self.move_to_joints(load_start_poses()[c.start_pose] if c.side == 'left'
                                 else self._mirror(load_start_poses()[c.start_pose]), 'start pose %s' % c.start_pose)
-            start = rospy.get_time()
-            self.deadline = start + c.timeout
-            self.pick(start)
+            self.clock = RunClock()
+            self.pick_with_recovery()
             if c.place_xy is not None:
                 self.place()
             self.result.success = True
@@ -119,25 +145,90 @@ class PickApplication:
             self.fail('unsafe_command', str(error))
         except robot.IKFailure as error:
             self.fail('ik_failure', str(error))
-        except robot.StreamLost as error:
+        except (robot.StreamLost, RobotRestarted) as error:
             self.fail('stream_lost', str(error))
         except robot.ServiceUnavailable as error:
             self.fail('service_unavailable', str(error))
         except robot.RobotError as error:
             self.fail('robot_error', str(error))
         finally:
-            if start is not None:
-                self.result.total_time_s = rospy.get_time() - start
+            if self.clock is not None:
+                self.result.total_time_s = self.clock.elapsed()
             self.finish()
         return self.result
 
-    def pick(self, start):
+    def pick_with_recovery(self):
+        """``pick``, resumed when the robot went away and came back (restarted, or a network outage: its
+        streams stopped) or a camera stream stalled, up to ``max_recoveries`` times; each wait lasts at most
+        ``robot_wait_timeout`` s. A service missing on a robot that is otherwise alive is not waited for."""
+        c = self.config
+        for recovery in range(c.max_recoveries + 1):
+            try:
+                return self.pick()
+            except (robot.StreamLost, robot.ServiceUnavailable, RobotRestarted) as error:
+                if recovery == c.max_recoveries or not self.recoverable(error):
+                    raise
+                rospy.logwarn('pick: %s; waiting up to %.0f s for the robot' % (error, c.robot_wait_timeout))
+                self.wait_for_robot()
+
+    def recoverable(self, error):
+        """A lost stream or a restart can end; a missing service is waited for only if the robot's own
+        streams stopped too (the whole robot went away), which a short probe tells."""
+        if not isinstance(error, robot.ServiceUnavailable):
+            return True
+        time.sleep(1.0)
+        try:
+            self.enabler.require_fresh(0.5)
+            self.limb.require_fresh(0.5)
+            return False
+        except robot.StreamLost:
+            return True
+
+    def wait_for_robot(self):
+        """Wait until the robot streams and serves IK again, then re-enable it (unless it was e-stopped),
+        recalibrate the gripper and reopen the camera."""
+        c = self.config
+        deadline = time.monotonic() + c.robot_wait_timeout
+        while True:
+            try:
+                self.enabler.require_fresh(c.stream_max_age)
+                self.limb.require_fresh()
+                self.gripper.require_fresh()
+                rospy.wait_for_service(self.limb.ik_service_name, timeout=max(0.1, deadline - time.monotonic()))
+                break
+            except (robot.StreamLost, rospy.ROSException):
+                if time.monotonic() > deadline or rospy.is_shutdown():
+                    raise robot.StreamLost('the robot', c.robot_wait_timeout, c.robot_wait_timeout) from None
+                time.sleep(0.2)
+        rospy.loginfo('pick: the robot is back: enabling, calibrating the gripper, reopening the camera')
+        if self.enabler.state().stopped:
+            raise PickFailure('robot_stopped', 'the robot came back stopped (e-stop): not resetting it')
+        self.enabler.enable()
+        if not self.gripper.calibrated() and not self.gripper.calibrate():
+            raise PickFailure('gripper', 'the gripper did not calibrate after the robot came back')
+        self.gripper.open(block=True, timeout=3.0)
+        self.camera.reopen()
+        self.limb.set_speed_ratio(c.speed_ratio)
+        self.last_block = None
+
+    def check_robot(self):
+        """PickFailure if the robot was stopped (e-stop) or disabled under us: nothing more is commanded.
+        RobotRestarted instead when it is disabled because it restarted (its clock went back)."""
+        state = self.enabler.state()
+        if state.stopped:
+            raise PickFailure('robot_stopped', 'the robot was stopped (e-stop, source %d)' % state.estop_source)
+        if not state.enabled:
+            if self.clock is not None and self.clock.restarted():
+                raise RobotRestarted('the robot restarted (its clock went back) and is disabled')
+            raise PickFailure('robot_disabled', 'the robot was disabled during the run')
+
+    def pick(self):
         c = self.config
         for attempt in range(1, c.max_grasp_attempts + 1):
             self.result.grasp_attempts = attempt
-            T_base_block = self.approach_pbvs(start) if c.mode == 'pbvs' else self.approach_velocity(start)
+            T_base_block = self.approach_pbvs() if c.mode == 'pbvs' else self.approach_velocity()
             if self.grasp(T_base_block):
-                self.result.time_s = rospy.get_time() - start
+                self.result.time_s = self.clock.elapsed()
                 rospy.loginfo('pick: block picked after %.1f s (%d steps, attempt %d)'
                               % (self.result.time_s, self.result.steps, attempt))
                 return
@@ -150,10 +241,11 @@ class PickApplication:
     def look(self, after_stamp=None):
         """Wait for a frame newer than ``after_stamp`` (ROS time), detect and estimate the block."""
         c = self.config
+        self.check_robot()
         try:
-            frame = self.camera.wait_for_frame(after_stamp, timeout=FRAME_TIMEOUT)
+            frame = self.camera.wait_for_frame(after_stamp, timeout=c.frame_timeout)
         except robot.RobotTimeout as error:
-            raise robot.StreamLost(self.camera.image_topic, FRAME_TIMEOUT) from error
+            raise robot.StreamLost(self.camera.image_topic, c.frame_timeout, c.frame_timeout) from error
         if self.calibrated_camera is not None:
             frame = frame._replace(camera=self.calibrated_camera)
         T_base_gripper = self.limb.endpoint_pose_at(frame.stamp)
@@ -240,11 +332,11 @@ class PickApplication:
         return T
 
     # ================================================================================ approach laws
-    def record(self, step, start, look, T_goal, error_px):
+    def record(self, step, look, T_goal, error_px):
         translation, rotation = pick.pose_error(look.T_base_gripper, T_goal)
         depth = look.target.pose.depth_m
         block_in_gripper = (invert(look.T_base_gripper) @ look.T_base_block)[:3, 3]
-        self.result.history.append(pick.StepRecord(step, rospy.get_time() - start, 1000 * translation,
+        self.result.history.append(pick.StepRecord(step, self.clock.elapsed(), 1000 * translation,
                                                    np.degrees(rotation), error_px, depth,
                                                    np.round(look.T_base_block[:3, 3], 5).tolist(),
                                                    np.round(1000 * block_in_gripper, 2).tolist()))
@@ -263,13 +355,13 @@ class PickApplication:
                                  [:3, 3][None])[0]
         return float(np.linalg.norm(now - at_goal))
 
-    def approach_pbvs(self, start):
+    def approach_pbvs(self):
         """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted."""
         c = self.config
         look = self.look_for_block()
         for step in range(c.max_steps + 1):
             T_goal = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
-            self.record(step, start, look, T_goal, self.image_error_px(look, T_goal))
+            self.record(step, look, T_goal, self.image_error_px(look, T_goal))
             if pick.converged(look.T_base_gripper, T_goal, c):
                 return look.T_base_block
             T_next = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
@@ -279,7 +371,7 @@ class PickApplication:
         raise PickFailure('not_converged', 'still %.1f mm from the hover pose after %d steps'
                           % (self.result.final_error_mm_est, c.max_steps))
 
-    def approach_velocity(self, start):
+    def approach_velocity(self):
         """IBVS or 2.5D at the camera rate: camera twist -> joint velocities (arm Jacobian from the URDF)."""
         c = self.config
         gain = pick.make_gain(c)
@@ -293,7 +385,7 @@ class PickApplication:
             vertices_xy = camera.undistort_points(look.target.detection.vertices_px)
             twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
                                             vertices_xy, self.model, gain)
-            translation, rotation = self.record(iteration, start, look, T_goal, error * camera.fx)
+            translation, rotation = self.record(iteration, look, T_goal, error * camera.fx)
             if error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
                 self.limb.exit_control_mode()
                 return look.T_base_block
@@ -375,19 +467,38 @@ class PickApplication:
                       % self.result.place_error_mm_est)
 
     # ================================================================================ motion
-    def move_to_pose(self, T_base_gripper, what):
-        """IK (seeded with the current angles; halfway poses if that fails) then a safety-checked move."""
+    def move_to_pose(self, T_base_gripper, what, max_intermediate=3):
+        """Move the gripper to ``T_base_gripper`` (IK, then a safety-checked joint move).
+
+        IK is seeded with the current angles, then with the robot's automatic seeding. If neither finds a
+        solution, the arm first goes to the pose halfway there (same two tries) and then tries the target
+        again from there, up to ``max_intermediate`` times; IKFailure when even that fails.
+        """
         xyz, quat = to_xyz_quat(T_base_gripper)
         rospy.loginfo('pick: %s: gripper to %s mm, quaternion %s' % (what, np.round(1000 * xyz, 1).tolist(),
                                                                   np.round(quat, 3).tolist()))
-        current = self.limb.endpoint_pose()
-        try:
-            q = self.limb.solve_ik(T_base_gripper, seed=self.limb.joint_angles())
-        except robot.IKFailure:
-            halfway = servo.interpolate_pose(current, T_base_gripper, 0.5)
-            rospy.logwarn('pick: %s: no IK solution, trying the halfway pose' % what)
-            q = self.limb.solve_ik(halfway, seed=self.limb.joint_angles())
-        self.move_to_joints(q, what)
+        for _ in range(max_intermediate):
+            q = self.solve_ik(T_base_gripper, what)
+            if q is not None:
+                return self.move_to_joints(q, what)
+            halfway = servo.interpolate_pose(self.limb.endpoint_pose(), T_base_gripper, 0.5)
+            q_halfway = self.solve_ik(halfway, what + ' (halfway)')
+            if q_halfway is None:
+                break
+            rospy.logwarn('pick: %s: no IK solution for the target: going halfway first' % what)
+            self.move_to_joints(q_halfway, what + ' (halfway)')
+        raise robot.IKFailure('%s: no IK solution for the gripper at %s mm (nor for intermediate poses)'
+                              % (what, np.round(1000 * xyz, 1).tolist()))
+
+    def solve_ik(self, T_base_gripper, what):
+        """Joint angles for ``T_base_gripper`` from the IK service (seeded with the current angles, then
+        the robot's automatic seeding), or None when neither finds a solution."""
+        for seed, description in ((self.limb.joint_angles(), 'current angles'), (None, 'automatic seed')):
+            try:
+                return self.limb.solve_ik(T_base_gripper, seed=seed)
+            except robot.IKFailure as error:
+                rospy.logwarn('pick: %s: no IK solution with the %s (%s)' % (what, description, error))
+        return None
 
     def move_to_joints(self, q, what):
         """Safety-checked position move; a long one goes in segments of at most the safety's joint step,
@@ -399,11 +510,12 @@ class PickApplication:
         segments = max(1, int(np.ceil(np.max(np.abs(q_target - q_from)) / self.safety.limits.max_joint_step)))
         for k in range(1, segments + 1):
             waypoint = dict(zip(names, q_from + (q_target - q_from) * k / segments))
-            if not self.limb.move_to_joint_positions(waypoint, timeout=10.0, tolerance=SETTLE_TOLERANCE):
+            if not self.limb.move_to_joint_positions(waypoint, timeout=10.0, tolerance=SETTLE_TOLERANCE,
+                                                     check=self.check_robot):
                 raise PickFailure('motion_timeout', '%s: the arm did not arrive' % what)
 
     def check_deadline(self):
-        if rospy.get_time() > self.deadline:
+        if self.clock.elapsed() > self.config.timeout:
             raise PickFailure('timeout', 'the run exceeded %.0f s' % self.config.timeout)
 
     @staticmethod
@@ -421,10 +533,9 @@ class PickApplication:
         try:
             if getattr(self, 'gripper', None) is not None and not self.gripper.gripping():
                 self.gripper.open(block=False)
-            if getattr(self, 'limb', None) is not None:
+            if getattr(self, 'limb', None) is not None and reason not in ('robot_stopped', 'robot_disabled'):
                 self.limb.exit_control_mode()
-                self.move_to_joints(self.limb.solve_ik(pick.raised(self.limb.endpoint_pose(), 0.05),
-                                                       seed=self.limb.joint_angles()), 'retreat')
+                self.move_to_pose(pick.raised(self.limb.endpoint_pose(), 0.05), 'retreat', max_intermediate=1)
         except (PickFailure, robot.RobotError, UnsafeCommand, ValueError) as error:
             rospy.logwarn('pick: could not retreat after the failure: %s' % error)
 

@@ -73,8 +73,9 @@ def pointing_pose(target_base, direction_base, distance):
     ``direction_base`` and its z axis (the fingers) pointing back at the target.
 
     The orientation is the straight-down one (``R_BASE_GRIPPER_DOWN``) tilted by the smallest
-    rotation that turns its z axis onto the target, so a sideways tilt keeps the pincer line along
-    base y and a forward/backward tilt keeps it horizontal.
+    rotation that turns its z axis onto the target; for the depth poses (tilts about base x or y)
+    the pincer line and the gripper's x axis stay in the vertical planes through base y and x, so
+    seen from above they remain parallel to the edges of a square of yaw 0.
     """
     direction = np.asarray(direction_base, dtype=float)
     direction = direction / np.linalg.norm(direction)

@@ -65,6 +65,9 @@ class PickConfig:
     feature_tolerance_px: float = 2.0       # IBVS/hybrid: converged when the RMS feature error is below this (px)
     timeout: float = 90.0                   # whole run (s of robot time)
     stream_max_age: float = 2.0             # a robot topic silent for longer (wall s) is lost
+    frame_timeout: float = 5.0              # a look waits this long (wall s) for a camera frame
+    robot_wait_timeout: float = 30.0        # after lost streams, wait this long (wall s) for the robot to return
+    max_recoveries: int = 2                 # times a run resumes after the robot came back
 
     @classmethod
     def from_dict(cls, values):
@@ -97,7 +100,8 @@ class PickConfig:
         require(self.mode in MODES, 'mode', 'must be one of %s' % (MODES,))
         for key in ('side_length', 'block_height', 'hover_height', 'tip_margin', 'position_tolerance', 'yaw_tolerance',
                     'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
-                    'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age'):
+                    'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age',
+                    'frame_timeout', 'robot_wait_timeout'):
             value = getattr(self, key)
             require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
                     'must be a positive number')

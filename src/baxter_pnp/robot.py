@@ -401,6 +401,8 @@ class Limb:
         try:
             response = self._ik(request)
         except rospy.ServiceException as error:
+            if 'connect' in str(error) or 'transport' in str(error):     # the server went away mid-call
+                raise ServiceUnavailable(f'{self.ik_service_name} is unreachable: {error}') from None
             raise IKFailure(f'{self.ik_service_name} call failed for {target}: {error}') from None
         result_types = list(bytearray(response.result_type)) if isinstance(response.result_type, (bytes, str)) \
             else list(response.result_type)
@@ -427,14 +429,15 @@ class Limb:
             return 0.0
         return float(np.max(np.abs(q_target - q_start) / (self._speed_ratio * velocity_limits)))
 
-    def move_to_joint_positions(self, positions, timeout=15.0, tolerance=JOINT_ANGLE_TOLERANCE):
+    def move_to_joint_positions(self, positions, timeout=15.0, tolerance=JOINT_ANGLE_TOLERANCE, check=None):
         """Move to ``positions`` (dict joint -> rad, missing joints stay, or 7 values); True once arrived.
 
         The target first passes ``safety.check_joint_target`` (UnsafeCommand, nothing sent). Then
         POSITION_MODE commands are streamed at 100 Hz along the straight joint-space segment from the
         current to the target angles, timed so that no joint exceeds the speed ratio x its velocity
         limit, until every joint is within ``tolerance`` rad of its target (True) or ``timeout`` wall
-        seconds passed (False, warning). StreamLost if the joint states stop meanwhile.
+        seconds passed (False, warning). StreamLost if the joint states stop meanwhile. ``check()``, if
+        given, is called at every command and may raise to abandon the move (e.g. the robot was stopped).
         """
         q_start = self.joint_positions()
         q_target = self._vector(positions, q_start)
@@ -456,6 +459,8 @@ class Limb:
                 return False
             if rospy.is_shutdown():
                 raise RobotError('ROS is shutting down')
+            if check is not None:
+                check()
             elapsed = rospy.get_time() - ros_start
             s = 1.0 if duration <= 0 else min(1.0, max(0.0, elapsed / duration))
             self._publish(msg.JointCommand.POSITION_MODE, q_start + s * (q_target - q_start))
@@ -646,6 +651,8 @@ class HandCamera:
         self.image_topic = f'/cameras/{self.name}/image'
         self.info_topic = f'/cameras/{self.name}/camera_info'
         self.timeout = timeout
+        self.fps = fps
+        self.service_timeout = service_timeout
         self.opened = self._open(fps, service_timeout)
         self._info = CachedTopic(self.info_topic, CameraInfo, CameraModel.from_camera_info)
         self._frames = CachedTopic(self.image_topic, Image, self._frame, buff_size=1 << 24)
@@ -670,6 +677,10 @@ class HandCamera:
                              f'{errno.errorcode.get(err, err)}')
         rospy.loginfo(f'{self.name}: opened at {width}x{height}, {fps} fps')
         return True
+
+    def reopen(self):
+        """Open the camera again with the same settings (after the robot restarted, say)."""
+        self.opened = self._open(self.fps, self.service_timeout)
 
     def close(self):
         """Stop receiving frames and close the camera if this object opened it (err 0 or EINVAL accepted).

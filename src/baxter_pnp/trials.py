@@ -25,7 +25,9 @@ import os
 import sys
 import threading
 import time
+from typing import NamedTuple
 
+import cv2
 import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
@@ -35,7 +37,8 @@ from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
 from baxter_pnp.sim.scene import Scene, Table
-from baxter_pnp.transforms import invert, make_transform, transform_points
+from baxter_pnp.sim.world import SimWorld
+from baxter_pnp.transforms import invert, make_transform, pose_msg_to_matrix, transform_points
 
 SIDE = 'left'
 CAMERA_RESOLUTION = (640, 400)        # the pick application's hand-camera mode
@@ -45,6 +48,7 @@ COLOURS_RGB = {'green': (0.1, 0.7, 0.1), 'red': (0.8, 0.1, 0.1), 'blue': (0.1, 0
                'yellow': (0.85, 0.8, 0.1)}   # all inside the HSV ranges of config/vision.yaml
 LIFT_THRESHOLD = 0.05                 # m the block must rise for a pick to count as lifted
 DISTRACTOR_MIN_DISTANCE = 0.08        # m between block centres (target and distractors)
+HAND_GREY_LEVEL = 120                 # rendered pixels darker than this are the hand (table ~210, floor ~255)
 MODES = pick.MODES
 START_POSES = ('down', 'angled')
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
@@ -79,15 +83,40 @@ def block_pose(xy, yaw, table_top_z, height=BLOCK_HEIGHT):
     return make_transform(Rotation.from_euler('z', yaw), (xy[0], xy[1], table_top_z + height))
 
 
-def top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px):
+@functools.lru_cache(maxsize=None)
+def hand_clearance_px(start_pose):
+    """(H, W) float array: distance (pixels) of each pixel of the start-pose view to the nearest pixel where
+    the hand (open gripper fingers) hides the table.
+
+    Found by rendering the empty table (``SimWorld``, the fake's renderer) from the start pose with the
+    gripper fully open, as the application's first look sees it; the fingers render dark (grey level
+    < ``HAND_GREY_LEVEL``), the table and floor light.
+    """
+    _, _, camera, _ = start_view(start_pose)
+    world = SimWorld(Scene(start=start_pose))
+    world.command_gripper(SIDE, 100.0, velocity_percent=100.0)
+    world.step(480)
+    image = world.render_camera(f'{SIDE}_hand_camera', camera, np.random.default_rng(0))
+    free = (cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) >= HAND_GREY_LEVEL).astype(np.uint8)
+    return cv2.distanceTransform(free, cv2.DIST_L2, 5)
+
+
+def top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px, clearance_px=None):
     """True if every top-face vertex is in front of the camera and projects (with distortion) at least
-    ``margin_px`` pixels inside the image."""
+    ``margin_px`` pixels inside the image and, given ``clearance_px`` (see :func:`hand_clearance_px`),
+    the whole face is more than ``margin_px`` pixels from anything the hand hides."""
     points_camera = transform_points(invert(T_base_camera) @ T_base_block, model.vertices)
     if np.any(points_camera[:, 2] <= 0.05):
         return False
     pixels = camera.project(points_camera)
-    return bool(np.all(pixels >= margin_px) and np.all(pixels[:, 0] <= camera.width - 1 - margin_px)
-                and np.all(pixels[:, 1] <= camera.height - 1 - margin_px))
+    if not (np.all(pixels >= margin_px) and np.all(pixels[:, 0] <= camera.width - 1 - margin_px)
+            and np.all(pixels[:, 1] <= camera.height - 1 - margin_px)):
+        return False
+    if clearance_px is None:
+        return True
+    face = np.zeros(clearance_px.shape, np.uint8)
+    cv2.fillPoly(face, [np.round(pixels).astype(np.int32)], 1)
+    return bool(clearance_px[face > 0].min() > margin_px)
 
 
 def on_table(T_base_block, model, table):
@@ -123,13 +152,15 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, margin
 
     The target: side uniform in ``size_range`` (m), yaw uniform in [-pi, pi), position uniform over the
     part of the table where its whole top face is seen from ``start_pose`` with ``margin_px`` pixels to
-    spare (published camera model at 640x400, forward kinematics of the URDF) and the arm can reach the
-    hover, grasp and lift poses. ``distractors`` other blocks (random shape and colour, never a green
+    spare, from the image border and from the open gripper's fingers (published camera model at 640x400,
+    forward kinematics of the URDF, :func:`hand_clearance_px`), and the arm can reach the hover, grasp and
+    lift poses. ``distractors`` other blocks (random shape and colour, never a green
     square, same sizes, also in view) stand at least 8 cm from every other block. ``rng`` is a
     ``numpy.random.Generator``. Raises RuntimeError if no placement is found in ``max_attempts`` draws.
     """
     table = table or Table()
     T_base_camera, _, camera, _ = start_view(start_pose)
+    clearance = hand_clearance_px(start_pose)
     low, high = _view_footprint(T_base_camera, camera, table.top_z + BLOCK_HEIGHT)
     low = np.maximum(low, np.subtract(table.center, np.divide(table.size, 2)))
     high = np.minimum(high, np.add(table.center, np.divide(table.size, 2)))
@@ -144,7 +175,7 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, margin
             if any(np.linalg.norm(xy - other) < DISTRACTOR_MIN_DISTANCE for other in placed):
                 continue
             if not (on_table(T_base_block, model, table)
-                    and top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px)):
+                    and top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px, clearance)):
                 continue
             if require_pickable and not pickable(T_base_block, side, start_pose):
                 continue
@@ -216,16 +247,20 @@ def _percentile(values, q):
     return float(np.percentile(values, q)) if len(values) else None
 
 
-def summarise(rows):
-    """Per-mode statistics: dict mode -> {trials, verified, success_pct, centring_median_mm, centring_p90_mm,
-    pre_close_median_mm, time_median_s, time_p90_s, wall_median_s, failures {label: count}}.
+def summarise(rows, by_start_pose=False):
+    """Statistics per mode (or per mode and start pose): dict 'mode' (or 'mode start_pose') -> {trials,
+    verified, success_pct, centring_median_mm, centring_p90_mm, pre_close_median_mm, time_median_s,
+    time_p90_s, wall_median_s, failures {label: count}}.
 
     Centring and time statistics are over verified picks; time = the application's ``time_s`` (robot
     time from the first look to the verified grasp).
     """
+    groups = {}
+    for row in sorted(rows, key=lambda r: (MODES.index(r['mode']), START_POSES.index(r['start_pose']))):
+        key = f"{row['mode']} {row['start_pose']}" if by_start_pose else row['mode']
+        groups.setdefault(key, []).append(row)
     summary = {}
-    for mode in [m for m in MODES if any(r['mode'] == m for r in rows)]:
-        mine = [r for r in rows if r['mode'] == mode]
+    for key, mine in groups.items():
         verified = [r for r in mine if r['verified']]
         centring = [r['centring_mm'] for r in verified]
         pre_close = [r['pre_close_offset_mm'] for r in verified if r['pre_close_offset_mm'] is not None]
@@ -235,18 +270,18 @@ def summarise(rows):
             label = failure_label(r)
             if label:
                 failures[label] = failures.get(label, 0) + 1
-        summary[mode] = {'trials': len(mine), 'verified': len(verified),
-                         'success_pct': 100.0 * len(verified) / len(mine),
-                         'centring_median_mm': _percentile(centring, 50), 'centring_p90_mm': _percentile(centring, 90),
-                         'pre_close_median_mm': _percentile(pre_close, 50),
-                         'time_median_s': _percentile(times, 50), 'time_p90_s': _percentile(times, 90),
-                         'wall_median_s': _percentile([r['wall_s'] for r in mine if r['wall_s'] is not None], 50),
-                         'failures': failures}
+        summary[key] = {'trials': len(mine), 'verified': len(verified),
+                        'success_pct': 100.0 * len(verified) / len(mine),
+                        'centring_median_mm': _percentile(centring, 50), 'centring_p90_mm': _percentile(centring, 90),
+                        'pre_close_median_mm': _percentile(pre_close, 50),
+                        'time_median_s': _percentile(times, 50), 'time_p90_s': _percentile(times, 90),
+                        'wall_median_s': _percentile([r['wall_s'] for r in mine if r['wall_s'] is not None], 50),
+                        'failures': failures}
     return summary
 
 
 def format_table(summary):
-    """The per-mode summary as a Markdown table."""
+    """A ``summarise`` result as a Markdown table."""
     def number(value, digits=1):
         return 'n/a' if value is None else f'{value:.{digits}f}'
     lines = ['| mode | verified picks | centring error median / p90 (mm) | pre-close offset median (mm) | '
@@ -276,7 +311,8 @@ def plot_results(rows, out_dir):
     bins = np.linspace(0.0, max(times + [1.0]) * 1.05, 25)
     for ax, mode in zip(axes[:, 0], modes):
         for start_pose in START_POSES:
-            values = [r['time_s'] for r in rows if r['verified'] and r['mode'] == mode and r['start_pose'] == start_pose]
+            values = [r['time_s'] for r in rows
+                      if r['verified'] and r['mode'] == mode and r['start_pose'] == start_pose]
             if values:
                 ax.hist(values, bins=bins, alpha=0.6, label=f'{start_pose} (n={len(values)})')
         ax.set_ylabel(f'{mode}\ntrials')
@@ -309,11 +345,34 @@ def plot_results(rows, out_dir):
 
 # ============================================================================================ ROS edge
 
+class GroundTruthSample(NamedTuple):
+    """The simulator's state at one ``/fake_baxter/object_poses`` message."""
+    stamp: float                 # simulated time (s)
+    T_base_block: np.ndarray     # the target block (objects[0]), top-face centre frame
+    T_base_gripper: np.ndarray   # latest endpoint state (left_gripper)
+    gripper_percent: float       # latest gripper opening (0 closed .. 100 open)
+
+
+def write_ground_truth(samples, path):
+    """The trace as CSV: time (s), block and gripper positions (base, mm), block yaw (deg), the block
+    centre in the gripper frame (mm) and the gripper opening (%)."""
+    with open(path, 'w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(['t_s', 'block_x_mm', 'block_y_mm', 'block_z_mm', 'block_yaw_deg', 'gripper_x_mm',
+                         'gripper_y_mm', 'gripper_z_mm', 'block_in_gripper_x_mm', 'block_in_gripper_y_mm',
+                         'block_in_gripper_z_mm', 'gripper_percent'])
+        for sample in samples:
+            yaw = math.degrees(math.atan2(sample.T_base_block[1, 0], sample.T_base_block[0, 0]))
+            writer.writerow(['%.4f' % sample.stamp] + ['%.2f' % v for v in (
+                *(1000 * sample.T_base_block[:3, 3]), yaw, *(1000 * sample.T_base_gripper[:3, 3]),
+                *block_in_gripper_mm(sample.T_base_gripper, sample.T_base_block), sample.gripper_percent)])
+
+
 class GroundTruthMonitor:
     """Records the simulator's ground truth during a trial (runner only; needs this process's rospy node).
 
-    On every ``/fake_baxter/object_poses`` message (30 Hz simulated) it stores (T_base_block of the first
-    object, latest T_base_gripper from ``/robot/limb/left/endpoint_state``, latest gripper opening in %).
+    On every ``/fake_baxter/object_poses`` message (30 Hz simulated) it stores a ``GroundTruthSample``
+    (the first object's pose, the latest ``/robot/limb/left/endpoint_state`` pose and gripper opening).
     """
 
     def __init__(self):
@@ -322,7 +381,7 @@ class GroundTruthMonitor:
 
         from baxter_pnp.msgs import msg
         self._lock = threading.Lock()
-        self.samples = []            # (T_base_block, T_base_gripper, gripper_position_percent)
+        self.samples = []            # GroundTruthSample, in arrival order
         self._gripper_pose = None
         self._gripper_position = None
         self._subscribers = [
@@ -332,7 +391,6 @@ class GroundTruthMonitor:
                              queue_size=1)]
 
     def _on_endpoint(self, message):
-        from baxter_pnp.transforms import pose_msg_to_matrix
         with self._lock:
             self._gripper_pose = pose_msg_to_matrix(message.pose)
 
@@ -341,13 +399,13 @@ class GroundTruthMonitor:
             self._gripper_position = float(message.position)
 
     def _on_objects(self, message):
-        from baxter_pnp.transforms import pose_msg_to_matrix
         if not message.poses:
             return
         with self._lock:
             if self._gripper_pose is not None and self._gripper_position is not None:
-                self.samples.append((pose_msg_to_matrix(message.poses[0]), self._gripper_pose,
-                                     self._gripper_position))
+                self.samples.append(GroundTruthSample(message.header.stamp.to_sec(),
+                                                      pose_msg_to_matrix(message.poses[0]), self._gripper_pose,
+                                                      self._gripper_position))
 
     def count(self):
         with self._lock:
@@ -372,7 +430,7 @@ def pre_close_sample(samples, open_above=95.0, closing_below=90.0):
     """The last sample before the gripper first started closing: its opening fell below ``closing_below``
     % after having been above ``open_above`` % (calibration opens it first). None if it never closed."""
     was_open = False
-    for k, (_, _, position) in enumerate(samples):
+    for k, position in enumerate(sample.gripper_percent for sample in samples):
         if position >= open_above:
             was_open = True
         elif was_open and position < closing_below:
@@ -422,8 +480,10 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
         with open(result_path) as f:
             result = json.load(f)
     if samples:
+        write_ground_truth(samples, os.path.join(workdir, 'ground_truth.csv'))
         pre = pre_close_sample(samples)
-        scores = score(scene, samples[-1][0], samples[-1][1], *(pre[:2] if pre else (None, None)))
+        scores = score(scene, samples[-1].T_base_block, samples[-1].T_base_gripper,
+                       *((pre.T_base_block, pre.T_base_gripper) if pre else (None, None)))
     else:
         scores = {'lifted': False, 'rise_mm': None, 'centring_mm': None, 'centring_x_mm': None,
                   'centring_y_mm': None, 'pre_close_offset_mm': None}
@@ -450,6 +510,24 @@ def _csv_value(value):
     return '' if value is None else value
 
 
+FIELD_TYPES = {'trial': int, 'seed': int, 'steps': int, 'grasp_attempts': int, 'returncode': int, 'distractors': int,
+               'mode': str, 'start_pose': str, 'failure_reason': str, 'trial_dir': str,
+               'app_success': 'bool', 'verified': 'bool', 'lifted': 'bool', 'timed_out': 'bool'}
+
+
+def read_csv(path):
+    """Rows of a ``trials.csv`` with their types back (numbers float unless listed in FIELD_TYPES, '' = None)."""
+    def parse(key, text):
+        kind = FIELD_TYPES.get(key, float)
+        if text == '':
+            return None
+        if kind == 'bool':
+            return text == 'True'
+        return kind(text)
+    with open(path, newline='') as f:
+        return [{k: parse(k, v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
 def write_csv(rows, path):
     with open(path, 'w', newline='') as f:
         writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
@@ -470,6 +548,8 @@ def parse_args(argv):
     parser.add_argument('--distractors', type=int, default=0, help='other blocks per scene (default %(default)s)')
     parser.add_argument('--timeout', type=float, default=300.0, help='wall seconds per trial (default %(default)s)')
     parser.add_argument('--out', default='trials_out', help='output directory (default %(default)s)')
+    parser.add_argument('--from-csv', nargs='+', metavar='CSV', help='run nothing: merge these trials.csv files '
+                        'into --out and report them (tables, summary.json, plots)')
     return parser.parse_args(argv)
 
 
@@ -477,7 +557,16 @@ def main(argv=None):
     """Entry point of ``scripts/run_trials.py``; returns the exit code (0 when every trial ran)."""
     import rospy
     from baxter_pnp.sim.launcher import RosMaster
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = parse_args(argv)
+    command = 'scripts/run_trials.py ' + ' '.join(argv)
+    if args.from_csv:
+        out = os.path.abspath(args.out)
+        os.makedirs(out, exist_ok=True)
+        rows = [row for path in args.from_csv for row in read_csv(path)]
+        write_csv(rows, os.path.join(out, 'trials.csv'))
+        report(rows, out, command)
+        return 0
     modes = MODES if args.mode == 'all' else (args.mode,)
     start_poses = START_POSES if args.start_pose == 'both' else (args.start_pose,)
     out = os.path.abspath(args.out)
@@ -505,10 +594,15 @@ def main(argv=None):
                   f"time {row['time_s'] if row['time_s'] is None else round(row['time_s'], 1)} s, "
                   f"centring {centring}, wall {row['wall_s']} s", flush=True)
         rospy.signal_shutdown('trials finished')
-    summary = summarise(rows)
-    with open(os.path.join(out, 'summary.json'), 'w') as f:
-        json.dump({'command': 'scripts/run_trials.py ' + ' '.join(sys.argv[1:] if argv is None else argv),
-                   'args': vars(args), 'per_mode': summary}, f, indent=1)
-    plot_results(rows, out)
-    print(format_table(summary))
+    report(rows, out, command, vars(args))
     return 0
+
+
+def report(rows, out, command, args=None):
+    """Print the tables (per mode, per mode and start pose); write ``summary.json`` and the plots in ``out``."""
+    per_mode, per_start_pose = summarise(rows), summarise(rows, by_start_pose=True)
+    with open(os.path.join(out, 'summary.json'), 'w') as f:
+        json.dump({'command': command, 'args': args, 'per_mode': per_mode,
+                   'per_mode_and_start_pose': per_start_pose}, f, indent=1)
+    plot_results(rows, out)
+    print(f'\n{command}\n\n{format_table(per_mode)}\n\n{format_table(per_start_pose)}')

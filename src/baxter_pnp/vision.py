@@ -88,8 +88,10 @@ class SubpixelConfig:
     corner_margin_px: float = 1.5
     min_edge_length_px: float = 4.0
     min_points: int = 6
-    step_window_px: float = 2.5
     min_contrast: float = 20.0
+    side_face_darkening: float = 0.5
+    min_strip_mass_px: float = 0.15
+    resolved_strip_px: float = 2.5
     max_rms_px: float = 0.5
     max_shift_px: float = 5.0
 
@@ -98,7 +100,7 @@ class SubpixelConfig:
 class RoiConfig:
     """Candidate search on an image subsampled by ``downsample``; full pipeline in padded regions."""
     enabled: bool = True
-    downsample: int = 4
+    downsample: int = 8
     padding_px: int = 16
 
 
@@ -333,21 +335,22 @@ def _polygon_area(vertices):
 
 
 def merge_close_vertices(vertices, min_distance):
-    """Closed polygon (k, 2) with each run of consecutive vertices closer than ``min_distance`` replaced by its mean."""
-    vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
-    clusters = [[v] for v in vertices]
-    merged = True
-    while merged and len(clusters) > 1:
-        merged = False
-        centres = [np.mean(c, axis=0) for c in clusters]
-        gaps = [np.linalg.norm(centres[i] - centres[(i + 1) % len(centres)]) for i in range(len(centres))]
-        i = int(np.argmin(gaps))
-        if gaps[i] < min_distance:
-            j = (i + 1) % len(clusters)
-            clusters[i] = clusters[i] + clusters[j]
-            del clusters[j]
-            merged = True
-    return np.array([np.mean(c, axis=0) for c in clusters])
+    """Closed polygon (k, 2) with each run of consecutive vertices closer than ``min_distance`` replaced by its mean.
+
+    The closest pair of neighbouring clusters (by their means) is merged first, until none is closer.
+    """
+    clusters = [[tuple(v)] for v in np.asarray(vertices, dtype=float).reshape(-1, 2)]
+    centres = [c[0] for c in clusters]
+    while len(clusters) > 1:
+        gaps = [math.dist(centres[i], centres[(i + 1) % len(centres)]) for i in range(len(centres))]
+        i = min(range(len(gaps)), key=gaps.__getitem__)
+        if gaps[i] >= min_distance:
+            break
+        j = (i + 1) % len(clusters)
+        clusters[i] += clusters[j]
+        centres[i] = tuple(sum(c) / len(clusters[i]) for c in zip(*clusters[i]))
+        del clusters[j], centres[j]
+    return np.array(centres, dtype=float).reshape(-1, 2)
 
 
 def fit_polygon_sides(contour, vertices, end_fraction=0.2):
@@ -355,35 +358,39 @@ def fit_polygon_sides(contour, vertices, end_fraction=0.2):
 
     ``vertices`` (k, 2) is a coarse polygon on ``contour`` (e.g. Douglas-Peucker's); each contour
     point is assigned to its nearest side, the points nearer a side's ends than ``end_fraction`` of
-    its length are dropped (rounded or clipped corners), and a line is fitted to the rest
-    (``cv2.fitLine``, Huber). A vertex whose two lines are missing or nearly parallel is kept.
+    its length are dropped (rounded or clipped corners), and a line is fitted to the rest (total
+    least squares: through their mean, along their principal axis; a long contour is subsampled to
+    about ``_MAX_SIDE_FIT_POINTS`` points). A vertex whose two lines are
+    missing (fewer than 3 points), nearly parallel, or meet farther than half a side from it is kept.
     Corrects corners cut off by morphology or by the top-face split by up to several pixels.
     """
     vertices = np.asarray(vertices, dtype=float).reshape(-1, 2)
-    points = contour.reshape(-1, 2).astype(float)
+    points = contour.reshape(-1, 2)
+    points = points[::max(1, len(points) // _MAX_SIDE_FIT_POINTS)].astype(float)
     starts, ends = vertices, np.roll(vertices, -1, axis=0)
     sides = ends - starts
     lengths = np.maximum(np.linalg.norm(sides, axis=1), 1e-9)
     # (points, sides) position along each side (0..1) and distance to it
     t = np.einsum('pkc,kc->pk', points[:, None, :] - starts[None], sides) / lengths ** 2
     closest = starts[None] + np.clip(t, 0.0, 1.0)[..., None] * sides[None]
-    nearest = np.argmin(np.linalg.norm(points[:, None, :] - closest, axis=2), axis=1)
-    lines = []
-    for k in range(len(vertices)):
-        tk = t[:, k]
-        chosen = points[(nearest == k) & (tk > end_fraction) & (tk < 1.0 - end_fraction)]
-        if len(chosen) < 3:
-            lines.append(None)
-            continue
-        vx, vy, x, y = cv2.fitLine(chosen.astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
-        lines.append((np.array([x, y], dtype=float), np.array([vx, vy], dtype=float)))
-    fitted = vertices.copy()
-    for k in range(len(vertices)):
-        before, after = lines[k - 1], lines[k]
-        corner = None if before is None or after is None else _intersect(before, after)
-        if corner is not None and np.linalg.norm(corner - vertices[k]) < 0.5 * min(lengths[k - 1], lengths[k]):
-            fitted[k] = corner
-    return fitted
+    nearest = np.argmin(np.sum((points[:, None, :] - closest) ** 2, axis=2), axis=1)
+    chosen = (nearest[:, None] == np.arange(len(vertices))) & (t > end_fraction) & (t < 1.0 - end_fraction)
+    counts = chosen.sum(axis=0)
+    weights = chosen / np.maximum(counts, 1)
+    means = weights.T @ points                                                   # (k, 2)
+    centred = points[:, None, :] - means[None]                                   # (p, k, 2)
+    cxx = np.einsum('pk,pk->k', weights, centred[..., 0] ** 2)
+    cyy = np.einsum('pk,pk->k', weights, centred[..., 1] ** 2)
+    cxy = np.einsum('pk,pk->k', weights, centred[..., 0] * centred[..., 1])
+    angle = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    directions = np.column_stack([np.cos(angle), np.sin(angle)])
+    corners = _intersect_lines(np.roll(means, 1, axis=0), np.roll(directions, 1, axis=0), means, directions)
+    good = (counts >= 3) & (np.roll(counts, 1) >= 3)
+    good &= np.linalg.norm(corners - vertices, axis=1) < 0.5 * np.minimum(np.roll(lengths, 1), lengths)
+    return np.where(good[:, None], corners, vertices)
+
+
+_MAX_SIDE_FIT_POINTS = 240
 
 
 def classify_shape(vertex_count):
@@ -458,14 +465,14 @@ def refine_vertices(image_bgr, coarse_px, config):
 
     Along each edge, ``profiles_per_edge`` colour profiles are sampled (bilinearly) along the edge
     normal, ``+- profile_half_length_px`` about the current edge, spread evenly but not near the
-    corners (where a profile would reach the next edge). The edge point of a profile is the 50 %
-    crossing of its first colour step (``_first_step_crossings``). A line is fitted to the points
-    (``cv2.fitLine``, Huber) and consecutive lines are intersected. This is repeated ``passes`` times,
-    each pass sampling about the previous pass's polygon (the first pass corrects coarse corners that
-    are pixels off; the next one measures with centred profiles). A vertex keeps its coarse position
-    when either adjacent line failed (fewer than ``min_points`` edge points, contrast below
-    ``min_contrast``, RMS above ``max_rms_px``), the lines are nearly parallel, or the intersection is
-    more than ``max_shift_px`` from the coarse vertex.
+    corners (where a profile would reach the next edge). Each profile gives the sub-pixel position
+    of the top face's edge (``_edge_crossings``: the table's edge, moved inwards across a thin side
+    face, or the step to a wide one); a line is fitted to the edge's points (least squares with one
+    Huber reweighting) and consecutive lines are intersected. This is repeated ``passes`` times,
+    each pass sampling about the previous pass's polygon. A vertex keeps its coarse position when
+    either adjacent line failed (fewer than ``min_points`` edge points, contrast below
+    ``min_contrast``, RMS above ``max_rms_px``), the lines are within ~10 deg of parallel, or the
+    intersection is more than ``max_shift_px`` from the coarse vertex.
 
     Returns ``(vertices (n, 2), rms_px, fallback_count)`` of the last pass: ``rms_px`` is the RMS
     distance of the edge points to their lines over the fitted edges (NaN if none).
@@ -473,32 +480,26 @@ def refine_vertices(image_bgr, coarse_px, config):
     coarse = np.asarray(coarse_px, dtype=float).reshape(-1, 2)
     r, step = config.profile_half_length_px, config.profile_step_px
     offsets = np.arange(-r, r + 0.5 * step, step)
-    vertices = coarse
+    vertices, rms, fallbacks = coarse, float('nan'), len(coarse)
     for _ in range(config.passes):
-        samples, points, normals, usable = _sample_edge_profiles(image_bgr, vertices, offsets, config)
-        crossings, contrasts = _first_step_crossings(samples, offsets, config.step_window_px)
-        lines, squared_residuals = [], []
-        for k in range(len(coarse)):
-            good = np.isfinite(crossings[k])
-            line = None
-            if usable[k] and good.sum() >= config.min_points and contrasts[k] >= config.min_contrast:
-                edge_points = (points[k, good] + crossings[k, good, None] * normals[k]).astype(np.float32)
-                vx, vy, x, y = cv2.fitLine(edge_points, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
-                residuals = (edge_points - [x, y]) @ np.array([-vy, vx])
-                if np.sqrt(np.mean(residuals ** 2)) <= config.max_rms_px:
-                    line = (np.array([x, y], dtype=float), np.array([vx, vy], dtype=float))
-                    squared_residuals.append(residuals ** 2)
-            lines.append(line)
-        refined, fallbacks = coarse.copy(), 0
-        for k in range(len(coarse)):
-            before, after = lines[k - 1], lines[k]       # edge k-1 ends at vertex k, edge k starts there
-            corner = None if before is None or after is None else _intersect(before, after)
-            if corner is None or np.linalg.norm(corner - coarse[k]) > config.max_shift_px:
-                fallbacks += 1
-            else:
-                refined[k] = corner
-        vertices = refined
-    rms = float(np.sqrt(np.mean(np.concatenate(squared_residuals)))) if squared_residuals else float('nan')
+        samples, points, directions, normals, usable = _sample_edge_profiles(image_bgr, vertices, offsets, config)
+        crossings, contrasts = _edge_crossings(samples, offsets, config)
+        crossings[~(usable & (contrasts >= config.min_contrast))] = np.nan
+        anchors, line_directions, residuals = _fit_edge_lines(points, directions, normals, crossings,
+                                                              config.min_points)
+        counts = np.isfinite(residuals).sum(axis=1)
+        edge_rms = np.sqrt(np.nansum(residuals ** 2, axis=1) / np.maximum(counts, 1))
+        edge_rms[np.isnan(anchors[:, 0])] = np.nan
+        fitted = np.isfinite(edge_rms) & (edge_rms <= config.max_rms_px)
+        # vertex k joins edge k - 1 (ending there) and edge k (starting there)
+        corners = _intersect_lines(np.roll(anchors, 1, axis=0), np.roll(line_directions, 1, axis=0),
+                                   anchors, line_directions)
+        good = fitted & np.roll(fitted, 1) & (np.linalg.norm(corners - coarse, axis=1) <= config.max_shift_px)
+        vertices = np.where(good[:, None], corners, coarse)
+        fallbacks = int(len(coarse) - good.sum())
+        used = residuals[fitted]
+        used = used[np.isfinite(used)]
+        rms = float(np.sqrt(np.mean(used ** 2))) if used.size else float('nan')
     return vertices, rms, fallbacks
 
 
@@ -506,9 +507,10 @@ def _sample_edge_profiles(image_bgr, polygon, offsets, config):
     """Colour profiles across the edges of ``polygon`` (n, 2); edge k runs from vertex k to k+1.
 
     Returns ``samples (n, M, K, 3)`` float32 (M = ``profiles_per_edge`` profiles of K = len(offsets)
-    samples, from inside to outside), their centre ``points (n, M, 2)`` on the edge, the outward unit
-    ``normals (n, 2)`` and ``usable (n,)`` (False for an edge too short to hold the profiles clear of
-    its corners). All profiles come from one ``cv2.remap`` of a float32 crop around the polygon.
+    samples, from inside to outside), their centre ``points (n, M, 2)`` on the edge, the unit edge
+    ``directions (n, 2)`` and outward ``normals (n, 2)``, and ``usable (n,)`` (False for an edge too
+    short to hold the profiles clear of its corners). All profiles come from one ``cv2.remap`` of a
+    float32 crop around the polygon.
     """
     n, m = len(polygon), config.profiles_per_edge
     starts, ends = polygon, np.roll(polygon, -1, axis=0)
@@ -532,68 +534,148 @@ def _sample_edge_profiles(image_bgr, polygon, offsets, config):
     map_x = (coords[..., 0] - x0).astype(np.float32).reshape(n * m, k)
     map_y = (coords[..., 1] - y0).astype(np.float32).reshape(n * m, k)
     samples = cv2.remap(crop, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return samples.reshape(n, m, k, 3), points, normals, usable
+    return samples.reshape(n, m, k, 3), points, directions, normals, usable
 
 
-def _first_step_crossings(samples, offsets, window_px):
-    """Offsets of the first colour step of each profile, and each edge's step contrast.
+def _edge_crossings(samples, offsets, config):
+    """Offset (px, along the outward normal) of the top face's edge in each profile, and each edge's contrast.
 
-    ``samples`` (E, M, K, 3): colours along M profiles of each of E edges, from inside (offset
-    ``offsets[0]``) to outside. The step of a profile is the first local maximum of its colour
-    gradient norm that reaches 5 % of the profile's largest and 3 times the edge's noise (median
-    gradient near the inside ends): the first, not the strongest, so that a thin darker side face
-    between the top face and the table does not pull the edge outwards. An edge's inside colour is
-    the median of its profiles' first samples, its outside colour the median of the colours
-    ``window_px`` beyond each step, or at the first gradient valley after it if sooner (a side face
-    thinner than the window). Each profile, projected on their difference, gives the edge point as its
-    0.5 crossing (linearly interpolated) nearest the step, if within 1 px of it.
-    Returns ``(offsets (E, M), NaN where none; contrasts (E,))``.
+    ``samples`` (E, M, K, 3): colours along M profiles of each of E edges, from inside to outside.
+    An edge's inside colour is the median of its profiles' first two samples (the top face), its far
+    colour that of their last two. Beyond a top edge lies the table, or a side face (the top's
+    colour, darker) and then the table. The table colour is the far colour least like a shade of the
+    top's (largest part orthogonal to it), for the edges that end on a side face. Each sample is
+    written ``a top + b table`` (least squares): ``b`` is the table's share, and the darkening
+    ``d = 1 - a - b`` is 0 on the top, on the table and on any blur of the two, and ``1 - s`` on a
+    side face ``s`` times as bright as the top. Per edge (medians over its profiles):
+
+    - no side face (darkening mass, the integral of ``d`` up to 2 px beyond the table's edge, below
+      ``min_strip_mass_px``): the edge is where ``b`` crosses 0.5, the table's edge ``x_b``;
+    - a thin side face (width below ``resolved_strip_px``): blur mixes it with both neighbours, so
+      its darkness is never seen, but blur keeps the darkening mass, ``(1 - s) w``; with ``1 - s``
+      the largest darkening seen, at least ``side_face_darkening``, the edge is at ``x_b - w``;
+    - a wider side face, or one that fills the profile's outer end: the 0.5 crossing of the step
+      from the top's colour to the side face's (the darkest sample's);
+    - a far colour that is neither table-like nor a shade of the top: the 0.5 crossing of the step to it.
+
+    Crossings are linearly interpolated, the one nearest the steepest part of the step, NaN where
+    there is none. Returns ``(crossings (E, M), contrasts (E,))``, the contrast being the BGR
+    distance between the inside and far colours.
     """
-    e, m, k = samples.shape[:3]
     step = offsets[1] - offsets[0]
-    index = np.arange(k)
-    gradient = np.zeros((e, m, k), np.float32)
-    change = samples[:, :, 2:] - samples[:, :, :-2]
-    gradient[..., 1:-1] = np.sqrt(np.einsum('emkc,emkc->emk', change, change))
-    noise = np.median(gradient[..., 1:3].reshape(e, -1), axis=1)[:, None, None]
-    floor = np.maximum(0.05 * gradient.max(axis=2, keepdims=True), 3.0 * noise + 1.0)
-    local_max = np.zeros((e, m, k), bool)
-    local_max[..., 1:-1] = (gradient[..., 1:-1] >= gradient[..., :-2]) & (gradient[..., 1:-1] >= gradient[..., 2:])
-    peak = local_max & (gradient >= floor)
-    found = peak.any(axis=2)
-    j = np.argmax(peak, axis=2)                                          # (E, M) first step
-    valley = np.zeros((e, m, k), bool)
-    valley[..., 1:-1] = (gradient[..., 1:-1] <= gradient[..., :-2]) & (gradient[..., 1:-1] < gradient[..., 2:])
-    valley &= index > j[..., None]
-    valley[..., -1] = True
-    beyond = np.minimum(j + int(round(window_px / step)), np.argmax(valley, axis=2))
-    inside = np.median(samples[:, :, :2].mean(axis=2), axis=1)           # (E, 3)
-    outside_each = np.take_along_axis(samples, beyond[..., None, None], axis=2)[:, :, 0]
-    outside = np.array([np.median(outside_each[edge, found[edge]], axis=0) if found[edge].any() else inside[edge]
-                        for edge in range(e)])                            # (E, 3)
-    difference = outside - inside
-    contrasts = np.sqrt(np.einsum('ec,ec->e', difference, difference))
-    q = np.einsum('emkc,ec->emk', samples - inside[:, None, None], difference)
-    q /= np.maximum(contrasts ** 2, 1e-9)[:, None, None]
-    above = q >= 0.5
+    e, m, k = samples.shape[:3]
+    ends = samples[:, :, [0, 1, k - 2, k - 1]].reshape(e, m, 2, 2, 3).mean(axis=3)
+    inside, far = np.moveaxis(np.median(ends, axis=1), 1, 0)                    # (E, 3) each
+    contrasts = np.linalg.norm(far - inside, axis=1)
+    along = np.einsum('ec,ec->e', far, inside) / np.maximum(np.einsum('ec,ec->e', inside, inside), 1e-9)
+    unlike = np.linalg.norm(far - along[:, None] * inside, axis=1) / np.maximum(np.linalg.norm(far, axis=1), 1e-9)
+    table_like = unlike >= _TABLE_LIKE * unlike.max()
+    table = np.where(table_like[:, None], far, far[np.argmax(unlike)])
+    a, b = _two_colour_shares(samples, inside, table)
+    darkening = 1.0 - a - b
+    x_b = _crossing(b, offsets)
+    reached = np.isfinite(x_b)
+    window = offsets <= np.where(reached, x_b, np.inf)[..., None] + 2.0
+    windowed = np.where(window, darkening, -np.inf)
+    mass = np.where(window, darkening, 0.0).sum(axis=2) * step                 # (E, M) px
+    median_mass, median_peak = np.median(np.stack([mass, windowed.max(axis=2)]), axis=2)
+    side_darkening = np.maximum(median_peak, config.side_face_darkening)
+    width = np.maximum(mass, 0.0) / side_darkening[:, None]
+    side_face = median_mass >= config.min_strip_mass_px
+    thin = side_face & (median_mass < config.resolved_strip_px * side_darkening)
+    crossings = np.where(thin[:, None], x_b - width, x_b)
+    table_beyond = (np.mean(reached, axis=1) >= 0.5) & (unlike.max() >= _TABLE_LIKE * 0.25)
+    step_edges = ~table_beyond | (side_face & ~thin)
+    if step_edges.any():
+        to_side = side_face & step_edges
+        darkest = np.argmax(windowed, axis=2)                                    # (E, M)
+        side_colour = np.median(np.take_along_axis(samples, darkest[..., None, None], axis=2)[:, :, 0], axis=1)
+        target = np.where(to_side[:, None], side_colour, far)[step_edges]
+        difference = target - inside[step_edges]
+        share = np.einsum('emkc,ec->emk', samples[step_edges] - inside[step_edges, None, None], difference)
+        share /= np.maximum(np.einsum('ec,ec->e', difference, difference), 1e-9)[:, None, None]
+        beyond = to_side[step_edges, None, None] & (offsets > offsets[darkest[step_edges]][..., None])
+        crossings[step_edges] = _crossing(np.where(beyond, 1.0, share), offsets)
+    return crossings, contrasts
+
+
+_TABLE_LIKE = 0.8   # _edge_crossings: a far colour this close to the most table-like one is the table
+
+
+def _two_colour_shares(samples, first, second):
+    """``(a, b)`` (E, M, K): least-squares shares of ``samples`` (E, M, K, 3) = a first + b second, per edge."""
+    g11 = np.einsum('ec,ec->e', first, first)
+    g12 = np.einsum('ec,ec->e', first, second)
+    g22 = np.einsum('ec,ec->e', second, second)
+    determinant = g11 * g22 - g12 ** 2
+    determinant = np.where(np.abs(determinant) > 1e-9 * g11 * g22, determinant, np.inf)
+    p1 = np.einsum('emkc,ec->emk', samples, first)
+    p2 = np.einsum('emkc,ec->emk', samples, second)
+    a = (g22[:, None, None] * p1 - g12[:, None, None] * p2) / determinant[:, None, None]
+    b = (g11[:, None, None] * p2 - g12[:, None, None] * p1) / determinant[:, None, None]
+    return a, b
+
+
+def _crossing(profile, offsets):
+    """Offset (...,) where each profile (..., K) rises through 0.5 (linear interpolation), nearest its steepest rise.
+
+    NaN where the profile never rises through 0.5.
+    """
+    k = profile.shape[-1]
+    slope = np.zeros(profile.shape)
+    slope[..., 1:-1] = profile[..., 2:] - profile[..., :-2]
+    steepest = np.argmax(slope, axis=-1)
+    above = profile >= 0.5
     rises = ~above[..., :-1] & above[..., 1:]
-    distance = np.abs(index[:-1] + 0.5 - j[..., None])
-    i = np.argmin(np.where(rises, distance, np.inf), axis=2)[..., None]
-    q0 = np.take_along_axis(q, i, axis=2)[..., 0]
-    q1 = np.take_along_axis(q, i + 1, axis=2)[..., 0]
-    crossing = offsets[i[..., 0]] + step * (0.5 - q0) / np.where(q1 > q0, q1 - q0, 1.0)
-    valid = found & rises.any(axis=2) & (np.abs(crossing - offsets[j]) <= 1.0)
-    return np.where(valid, crossing, np.nan), contrasts
+    distance = np.abs(np.arange(k - 1) + 0.5 - steepest[..., None])
+    i = np.argmin(np.where(rises, distance, np.inf), axis=-1)[..., None]
+    p0 = np.take_along_axis(profile, i, axis=-1)[..., 0]
+    p1 = np.take_along_axis(profile, i + 1, axis=-1)[..., 0]
+    step = offsets[1] - offsets[0]
+    crossing = offsets[i[..., 0]] + step * (0.5 - p0) / np.where(p1 > p0, p1 - p0, 1.0)
+    return np.where(rises.any(axis=-1), crossing, np.nan)
 
 
-def _intersect(line_a, line_b):
-    """Intersection (2,) of two ``(point, direction)`` lines, or None if they are within ~10 deg of parallel."""
-    (pa, da), (pb, db) = line_a, line_b
-    cross = da[0] * db[1] - da[1] * db[0]
-    if abs(cross) < 0.17:
-        return None
-    t = ((pb[0] - pa[0]) * db[1] - (pb[1] - pa[1]) * db[0]) / cross
-    return pa + t * da
+def _fit_edge_lines(points, directions, normals, crossings, min_points):
+    """Lines through each edge's points ``points + crossings * normal`` (NaN crossings skipped).
+
+    The offsets are fitted as a linear function of the position along the edge, by least squares
+    then once more with Huber weights (threshold 1.345 times the RMS residual, at least 0.05 px). Returns
+    ``(anchors (E, 2), directions (E, 2), residuals (E, M))``: a point and unit direction of each
+    line (NaN with fewer than ``min_points`` points) and each point's distance to it (px, signed, NaN if unused).
+    """
+    valid = np.isfinite(crossings)
+    offset = np.where(valid, crossings, 0.0)
+    centre = points.mean(axis=1)                                                # (E, 2)
+    t = np.einsum('emc,ec->em', points - centre[:, None], directions)
+    weights = valid.astype(float)
+    for _ in range(2):
+        sw = weights.sum(axis=1)
+        swt, swc = (weights * t).sum(axis=1), (weights * offset).sum(axis=1)
+        swtt, swtc = (weights * t * t).sum(axis=1), (weights * t * offset).sum(axis=1)
+        denominator = sw * swtt - swt ** 2
+        solvable = denominator > 1e-9
+        slope = np.where(solvable, sw * swtc - swt * swc, 0.0) / np.where(solvable, denominator, 1.0)
+        intercept = (swc - slope * swt) / np.maximum(sw, 1e-9)
+        residuals = np.where(valid, offset - intercept[:, None] - slope[:, None] * t, 0.0)
+        scale = np.maximum(np.sqrt((weights * residuals ** 2).sum(axis=1) / np.maximum(sw, 1e-9)), 0.05)
+        weights = valid * np.minimum(1.0, 1.345 * scale[:, None] / np.maximum(np.abs(residuals), 1e-12))
+    residuals[~valid] = np.nan
+    norm = np.sqrt(1.0 + slope ** 2)
+    enough = valid.sum(axis=1) >= max(min_points, 2)
+    anchors = np.where(enough[:, None], centre + intercept[:, None] * normals, np.nan)
+    line_directions = np.where(enough[:, None], (directions + slope[:, None] * normals) / norm[:, None], np.nan)
+    return anchors, line_directions, residuals / norm[:, None]
+
+
+def _intersect_lines(points_a, directions_a, points_b, directions_b):
+    """(n, 2) intersections of lines a and b (point, unit direction); NaN where within ~10 deg of parallel."""
+    cross = directions_a[:, 0] * directions_b[:, 1] - directions_a[:, 1] * directions_b[:, 0]
+    gap = points_b - points_a
+    with np.errstate(invalid='ignore', divide='ignore'):
+        t = (gap[:, 0] * directions_b[:, 1] - gap[:, 1] * directions_b[:, 0]) / cross
+        corners = points_a + t[:, None] * directions_a
+    return np.where((np.abs(cross) >= 0.17)[:, None], corners, np.nan)
 
 
 # ================================================================================== detection
@@ -655,10 +737,11 @@ def detect(image_bgr, config, colours=None, shapes=None):
     else:
         hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
         threshold = _dynamic_threshold(hsv, config)
-        regions = [(0, 0, image_bgr.shape[1], image_bgr.shape[0])]
+        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(ranges))]
     detections = []
-    for region in regions:
-        detections.extend(_detect_in_region(image_bgr, region, threshold, ranges, shapes, config))
+    for region, region_colours in regions:
+        region_ranges = {name: r for name, r in ranges.items() if name in region_colours}
+        detections.extend(_detect_in_region(image_bgr, region, threshold, region_ranges, shapes, config))
     detections.sort(key=lambda d: -d.area_px)
     return detections
 
@@ -677,10 +760,11 @@ def _oversaturated_hsv(hsv, threshold, config):
 
 
 def _candidate_regions(image_bgr, ranges, config):
-    """``(threshold, regions)``: eq. 3.14's threshold and padded ``(x0, y0, x1, y1)`` boxes around blobs.
+    """``(threshold, regions)``: eq. 3.14's threshold and the regions ``((x0, y0, x1, y1), colours)`` to search.
 
-    Runs stages 1-6 on the image subsampled by ``roi.downsample`` (nearest pixel); overlapping boxes
-    are merged so that every blob lies whole inside exactly one region.
+    Runs stages 1-6 on the image subsampled by ``roi.downsample`` (nearest pixel); each blob of a
+    colour gives a box padded by ``roi.padding_px``; overlapping boxes are merged (with their
+    colours) so that every blob lies whole inside exactly one region.
     """
     f = config.roi.downsample
     h, w = image_bgr.shape[:2]
@@ -688,41 +772,42 @@ def _candidate_regions(image_bgr, ranges, config):
     hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
     threshold = _dynamic_threshold(hsv, config)
     oversaturated = _oversaturated_hsv(hsv, threshold, config)
-    mask = None
-    for colour_ranges in ranges.values():
-        m = colour_mask(oversaturated, colour_ranges)
-        mask = m if mask is None else cv2.bitwise_or(mask, m)
-    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     pad = config.roi.padding_px
     boxes = []
-    for x, y, bw, bh, area in stats[1:]:
-        if area * f * f < 0.25 * config.min_area_px:
+    for colour, colour_ranges in ranges.items():
+        mask = colour_mask(oversaturated, colour_ranges)
+        if not cv2.countNonZero(mask):
             continue
-        boxes.append([max(0, x * f - pad), max(0, y * f - pad), min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)])
+        _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        for x, y, bw, bh, area in stats[1:]:
+            if area * f * f >= 0.25 * config.min_area_px:
+                boxes.append(((max(0, x * f - pad), max(0, y * f - pad),
+                               min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour}))
     return threshold, _merge_boxes(boxes)
 
 
 def _merge_boxes(boxes):
-    """Union of overlapping ``[x0, y0, x1, y1]`` boxes until none overlap."""
-    boxes = [list(b) for b in boxes]
+    """Union of overlapping ``((x0, y0, x1, y1), colours)`` boxes (and of their colour sets) until none overlap."""
+    boxes = list(boxes)
     merged = True
     while merged:
         merged = False
         for i in range(len(boxes)):
             for j in range(i + 1, len(boxes)):
-                a, b = boxes[i], boxes[j]
+                (a, colours_a), (b, colours_b) = boxes[i], boxes[j]
                 if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
-                    boxes[i] = [min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])]
+                    boxes[i] = ((min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])),
+                                colours_a | colours_b)
                     del boxes[j]
                     merged = True
                     break
             if merged:
                 break
-    return [tuple(b) for b in boxes]
+    return boxes
 
 
 def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
-    """Detections whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
+    """Detections of the colours in ``ranges`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
     x0, y0, x1, y1 = region
     crop = image_bgr[y0:y1, x0:x1]
     hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)

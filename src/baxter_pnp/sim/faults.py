@@ -128,7 +128,10 @@ class GripperFaults:
 @dataclass(frozen=True)
 class Faults:
     """Every fault of a run. ``joint_command_delay`` (s): a JointCommand takes effect this long after it
-    arrives. ``estop_at`` (s): the robot stops then, as on ``/robot/set_super_stop``."""
+    arrives. ``estop_at`` (s): the robot stops then, as on ``/robot/set_super_stop``. ``time_origin``:
+    what the fault times (camera stall/blackout ``at``, ``nudge.at``, ``estop_at``) count from:
+    ``'boot'`` (the fake's start) or ``'camera_open'`` (the first time any camera is opened, i.e. when an
+    application starts looking; no timed fault happens before that)."""
     camera: CameraFaults = field(default_factory=CameraFaults)
     nudge: Optional[Nudge] = None
     occluder: Optional[Occluder] = None
@@ -136,6 +139,7 @@ class Faults:
     gripper: GripperFaults = field(default_factory=GripperFaults)
     joint_command_delay: float = 0.0
     estop_at: Optional[float] = None
+    time_origin: str = 'boot'
 
     def summary(self):
         """One line naming the faults that differ from none, e.g. ``camera.latency=0.1, estop_at=10``."""
@@ -146,7 +150,7 @@ class Faults:
             parts += [f'{name}.{key}={_short(value)}' for key, value in vars(group).items()
                       if value != getattr(none, key)]
         parts += [f'{key}={_short(getattr(self, key))}'
-                  for key in ('nudge', 'occluder', 'joint_command_delay', 'estop_at')
+                  for key in ('nudge', 'occluder', 'joint_command_delay', 'estop_at', 'time_origin')
                   if getattr(self, key) != getattr(default, key)]
         return ', '.join(parts) or 'none'
 

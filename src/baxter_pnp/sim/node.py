@@ -343,6 +343,7 @@ class FakeBaxterNode:
         self._schedules = [(RateSchedule(RATES_HZ[key]), getattr(self, '_publish_' + key)) for key in RATES_HZ]
         for name, width, height, fps in open_cameras:
             self.cameras.open(name, width, height, fps, now=0.0)
+            world.start_fault_clock()
 
         rospy.set_param('/rethink/software_version', SOFTWARE_VERSION)
         rospy.set_param('/robot_description', urdf_text)
@@ -393,7 +394,7 @@ class FakeBaxterNode:
             now = self.world.time
             for apply_command in self._delayed_commands.due(now):
                 apply_command()
-            self._inject_estop(now)
+            self._inject_estop(self.world.fault_time(now))
             if self.arm.tick(now):
                 rospy.logdebug('velocity command timed out: holding position')
             self._publish_due(now)
@@ -590,6 +591,8 @@ class FakeBaxterNode:
                                         self.world.time)
         if err:
             rospy.logwarn(f'/cameras/open {request.name} refused ({errno.errorcode[err]}): {reason}')
+        else:
+            self.world.start_fault_clock()
         return srv.OpenCameraResponse(err)
 
     def _image_publishers(self, name):
@@ -603,10 +606,11 @@ class FakeBaxterNode:
         """Render the frame due at ``now`` (s) and queue it for publication after the camera latency fault;
         the frame-drop, stall, blackout and brightness faults apply here."""
         camera_faults = self.faults.camera
-        if not camera_faults.publishes(now, self._frame_fault_rng.random()):
+        if not camera_faults.publishes(self.world.fault_time(now), self._frame_fault_rng.random()):
             return
         header = Header(stamp=rospy.Time.from_sec(now), frame_id=name)
-        image = self.world.render_camera(name, cam.model, self._noise_rng, gain=camera_faults.gain(now))
+        image = self.world.render_camera(name, cam.model, self._noise_rng,
+                                         gain=camera_faults.gain(self.world.fault_time(now)))
         self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header),
                                        cam.model.to_camera_info(header)))
 

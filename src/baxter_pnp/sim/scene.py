@@ -31,6 +31,7 @@ from baxter_pnp.sim.faults import (NUDGE_DURATION, OCCLUDER_COLOR, Box, CameraFa
 from baxter_pnp.transforms import from_xyz_rpy
 
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
+TIME_ORIGINS = ('boot', 'camera_open')     # what fault times count from (sim/faults.py)
 
 
 class SceneError(ValueError):
@@ -252,7 +253,10 @@ def _camera_error(d):
 
 # ------------------------------------------------------------------------------------------- faults
 def _faults(d, key='faults'):
-    d = _mapping(d, key, {'camera', 'nudge', 'occluder', 'ik', 'gripper', 'joint_command_delay', 'estop_at'})
+    d = _mapping(d, key, {'camera', 'nudge', 'occluder', 'ik', 'gripper', 'joint_command_delay', 'estop_at',
+                          'time_origin'})
+    if d.get('time_origin', 'boot') not in TIME_ORIGINS:
+        raise SceneError(f'{key}.time_origin: must be one of {", ".join(TIME_ORIGINS)}')
 
     def optional(name, parse):
         return None if d.get(name) is None else parse(d[name], f'{key}.{name}')
@@ -262,7 +266,8 @@ def _faults(d, key='faults'):
                   ik=_ik_faults(d.get('ik', {}), f'{key}.ik'),
                   gripper=_gripper_faults(d.get('gripper', {}), f'{key}.gripper'),
                   joint_command_delay=_non_negative(d.get('joint_command_delay', 0.0), f'{key}.joint_command_delay'),
-                  estop_at=optional('estop_at', _non_negative))
+                  estop_at=optional('estop_at', _non_negative),
+                  time_origin=d.get('time_origin', 'boot'))
 
 
 def _required(d, key, names):

@@ -79,6 +79,8 @@ class SimWorld:
         if scene.faults.occluder is not None:
             self._make_occluder(scene.faults.occluder)
         self._nudge_start = None     # (position, orientation) of the nudged block when its push began
+        # Fault times count from boot, or (time_origin 'camera_open') from start_fault_clock(): never before.
+        self.fault_time_origin = 0.0 if scene.faults.time_origin == 'boot' else math.inf
         self.set_arm_positions('left', scene.start_positions())
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
@@ -143,13 +145,22 @@ class SimWorld:
         p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self._client)
 
     # ------------------------------------------------------------------------------------ clock
+    def fault_time(self, t=None):
+        """Simulated time ``t`` (default now), in s, on the faults' clock (``scene.faults.time_origin``)."""
+        return (self.time if t is None else t) - self.fault_time_origin
+
+    def start_fault_clock(self):
+        """With ``time_origin: camera_open``: fault times count from now (first call only)."""
+        if math.isinf(self.fault_time_origin):
+            self.fault_time_origin = self.time
+
     def step(self, n=1):
         """Advance ``n`` physics steps of ``time_step`` seconds (arm set-points, motors, contacts)."""
         nudge = self.scene.faults.nudge
         for _ in range(int(n)):
             for arm in self._arms.values():
                 arm.update(self.time_step)
-            if nudge is not None and nudge.moves_during(self.time, self.time + self.time_step):
+            if nudge is not None and nudge.moves_during(self.fault_time(), self.fault_time() + self.time_step):
                 self._push(nudge)
             p.stepSimulation(physicsClientId=self._client)
             for gripper in self._grippers.values():
@@ -163,7 +174,7 @@ class SimWorld:
         if self._nudge_start is None:
             self._nudge_start = p.getBasePositionAndOrientation(body, physicsClientId=self._client)
         (x, y, z), orientation = self._nudge_start
-        now, after = nudge.displacement(self.time), nudge.displacement(self.time + self.time_step)
+        now, after = nudge.displacement(self.fault_time()), nudge.displacement(self.fault_time() + self.time_step)
         p.resetBasePositionAndOrientation(body, [x + now[0], y + now[1], z], orientation,
                                           physicsClientId=self._client)
         velocity = (after - now) / self.time_step

@@ -62,7 +62,26 @@ def pose_error(T_current, T_target):
     return np.concatenate([T_target[:3, 3] - T_current[:3, 3], rotation])
 
 
-class ArmKinematics:
+class PyBulletClientOwner:
+    """Base of the classes that own a PyBullet client (``self._client``): ``close()`` disconnects it, and
+    so does garbage collection."""
+
+    _client = None
+
+    def close(self):
+        """Disconnect the PyBullet client."""
+        if self._client is not None and p.isConnected(self._client):
+            p.disconnect(self._client)
+        self._client = None
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:   # interpreter shutdown: pybullet may already be gone
+            pass
+
+
+class ArmKinematics(PyBulletClientOwner):
     """FK, Jacobian and IK of Baxter's ``side`` arm from a URDF (default ``urdf/baxter.urdf``)."""
 
     def __init__(self, side='left', urdf_path=None):
@@ -84,18 +103,6 @@ class ArmKinematics:
         self._dof_upper = np.array([p.getJointInfo(self._robot, i, physicsClientId=self._client)[9] for i in movable])
         self._n_dof = len(movable)
         self._reach_cache = {}
-
-    def close(self):
-        """Disconnect the private PyBullet client."""
-        if self._client is not None and p.isConnected(self._client):
-            p.disconnect(self._client)
-        self._client = None
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:   # interpreter shutdown: pybullet may already be gone
-            pass
 
     # --------------------------------------------------------------------------------- FK / Jacobian
     def _set(self, q):

@@ -24,7 +24,8 @@ import numpy as np
 import pybullet as p
 
 from baxter_pnp.camera import CameraModel
-from baxter_pnp.kinematics import DEFAULT_URDF, NEUTRAL, arm_joint_names, body_indices, link_pose
+from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, arm_joint_names, body_indices,
+                                   link_pose)
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
 from baxter_pnp.transforms import from_xyz_quat, invert, make_transform
 
@@ -52,7 +53,7 @@ LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightD
 T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-class SimWorld:
+class SimWorld(PyBulletClientOwner):
     """The simulated Baxter, table and blocks of ``scene`` (a ``sim.scene.Scene``); see docs/ARCHITECTURE.md."""
 
     def __init__(self, scene, urdf_path=None, time_step=1 / 240.0):
@@ -84,18 +85,6 @@ class SimWorld:
         self.set_arm_positions('left', scene.start_positions())
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
-
-    def close(self):
-        """Disconnect PyBullet."""
-        if self._client is not None and p.isConnected(self._client):
-            p.disconnect(self._client)
-        self._client = None
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:   # interpreter shutdown: pybullet may already be gone
-            pass
 
     # ------------------------------------------------------------------------------------ building
     def _make_table(self, table):

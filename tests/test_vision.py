@@ -13,7 +13,8 @@ from baxter_pnp.camera import load_default_camera
 from baxter_pnp.transforms import make_transform
 
 GREEN = (40, 170, 40)
-COLOURS_BGR = {'green': GREEN, 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}   # the benchmark's
+# the benchmark's colours
+COLOURS_BGR = {'green': GREEN, 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
 
 
 @pytest.fixture(scope='module')
@@ -198,9 +199,9 @@ def test_subpixel_vertex_accuracy_on_random_views(camera, config):
         if without:
             coarse_errors.extend(vertex_errors(without[0].vertices_px, truths[0]['vertices_px']))
     errors = np.array(errors)
-    assert missed <= 1
-    assert np.median(errors) <= 0.15
-    assert np.percentile(errors, 90) <= 0.6
+    assert missed == 0
+    assert np.median(errors) <= 0.1
+    assert np.percentile(errors, 90) <= 0.35                             # side faces (thin ones too) kept out
     assert np.median(coarse_errors) > 3 * np.median(errors)             # the refinement is what gets there
 
 
@@ -249,6 +250,18 @@ def test_thin_side_face_does_not_pull_an_edge_out(camera, config, view):
         [detection] = vision.detect(image, config, colours=[view[2]])
         errors = vertex_errors(detection.vertices_px, truth)
         assert errors.mean() < 0.35 and errors.max() < 0.8, errors
+
+
+def test_top_face_under_a_lower_light(camera, config):
+    """A light 35 deg from the table's normal: the brightest side face is 0.76 as bright as the top (as in the fake)."""
+    rng = np.random.default_rng(5)
+    for k in range(16):
+        spec = synthetic.BlockSpec(['square', 'pentagon', 'triangle', 'hexagon'][k % 4], 0.04, 0.02, GREEN)
+        T = synthetic.random_block_pose(rng, (0.15, 0.35), 35.0, camera, block=spec)
+        image, truths = synthetic.render_block_scene(camera, [(spec, T)], rng, light_dir_camera=(0.6, 0.2, -1.0))
+        detections = vision.detect(image, config)
+        assert [d.shape for d in detections] == [spec.shape], k
+        assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).mean() < 0.5, k
 
 
 def test_roi_search_gives_the_full_frame_result(camera, config):

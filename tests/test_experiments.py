@@ -108,8 +108,8 @@ def test_command_line_rejects_unknown_poses_and_parses_lists():
 
 
 def test_reduced_depth_run_on_the_fake_baxter(ros_node, fake_baxter, tmp_path):
-    """One tilted pose (commanded through the app's IK service moves), 4 frames: the estimate is within
-    a few millimetres of the truth (the fake's aliased rendering bounds it; docs/experiments.md)."""
+    """One tilted pose (commanded through the app's IK service moves), 4 frames: the depth estimate is
+    within the experiment's acceptance (1 mm mean over 56 frames; 1.5 mm here over 4) of the truth."""
     scene = tmp_path / 'scene.yaml'
     scene.write_text(yaml.safe_dump(experiments.depth_scene()))
     fake_baxter('--scene', str(scene), '--enable', '--real-time-factor', '0')
@@ -119,6 +119,7 @@ def test_reduced_depth_run_on_the_fake_baxter(ros_node, fake_baxter, tmp_path):
     for s in samples:
         assert s.distance_true == pytest.approx(0.161, abs=0.002)       # the arm got to the ruler pose
         assert s.depth_true == pytest.approx(0.303, abs=0.005)
-        assert abs(s.depth_error_mm) < 5.0 and abs(s.distance_error_mm) < 5.0
-        assert s.position_error < 0.006
+        assert s.position_error < 0.005
         assert s.method == 'sqp'
+    assert np.mean([abs(s.depth_error_mm) for s in samples]) < 1.5
+    assert np.mean([abs(s.distance_error_mm) for s in samples]) < 1.5

@@ -342,3 +342,17 @@ def test_joint_velocities_reproduce_the_twist_and_respect_limits():
     np.testing.assert_allclose(limited, 0.5 * qdot, rtol=1e-9)      # same direction, half the speed
     achieved = J @ limited
     assert achieved @ twist / (np.linalg.norm(achieved) * np.linalg.norm(twist)) == pytest.approx(1.0, abs=1e-8)
+
+
+def test_joint_velocities_freeze_a_joint_at_its_limit_and_keep_the_twist():
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(6, 7))
+    twist = rng.normal(size=6)
+    free = servo.joint_velocities(J, twist, damping=1e-6)
+    joint = int(np.argmax(np.abs(free)))
+    lower, upper = np.full(7, -2.0), np.full(7, 2.0)
+    q = np.zeros(7)
+    q[joint] = (lower if free[joint] < 0 else upper)[joint] - np.sign(free[joint]) * 0.01   # at the limit it heads to
+    limited = servo.joint_velocities(J, twist, damping=1e-6, q=q, lower=lower, upper=upper)
+    assert limited[joint] == 0.0
+    np.testing.assert_allclose(J @ limited, twist, atol=1e-6)       # the other six joints still give the twist

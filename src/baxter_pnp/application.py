@@ -262,7 +262,7 @@ class PickApplication:
     def _choose(self, observations, frame, T_base_camera):
         """The target among the estimated observations: the one nearest the last estimate (tracking), else
         the largest / most central (vision.select_target)."""
-        posed = [o for o in observations if o.pose is not None]
+        posed = [o for o in observations if o.pose is not None and o.pose.residual_px <= self.config.max_residual_px]
         if not posed:
             return None
         if self.last_block is not None:
@@ -378,22 +378,31 @@ class PickApplication:
         camera_frame = '%s_hand_camera' % c.side
         velocity_limits = c.speed_ratio * self.kinematics.velocity_limits * 2.0
         look = self.look_for_block()
+        at_view = False         # first goal: the view pose (block low in the image); then the hover pose
         for iteration in range(10 * c.max_steps + 1):
-            T_goal = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
-            T_camera_goal_block = pick.camera_goal(T_goal, look.T_base_block, self.hand_eye.T_gripper_camera)
             camera = look.frame.camera
+            T_hover = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
+            T_goal = T_hover if at_view else pick.view_pose(look.T_base_block, T_hover, self.hand_eye.T_gripper_camera,
+                                                            camera, c)
+            T_camera_goal_block = pick.camera_goal(T_goal, look.T_base_block, self.hand_eye.T_gripper_camera)
             vertices_xy = camera.undistort_points(look.target.detection.vertices_px)
             twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
                                             vertices_xy, self.model, gain)
-            translation, rotation = self.record(iteration, look, T_goal, error * camera.fx)
-            if error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
+            translation, rotation = self.record(iteration, look, T_hover, error * camera.fx)
+            if not at_view and error * camera.fx <= c.view_tolerance_px:
+                rospy.loginfo('pick [%s]: view reached (%.1f px): now up between the fingers to the hover pose'
+                              % (c.mode, error * camera.fx))
+                at_view = True
+                continue
+            if at_view and error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
                 self.limb.exit_control_mode()
                 return look.T_base_block
             twist_base = servo.camera_twist_to_base(pick.bounded_twist(twist, c.max_linear_speed,
                                                                        c.max_angular_speed), look.T_base_camera)
             q = self.limb.joint_positions()
             qdot = servo.joint_velocities(self.kinematics.jacobian(q, camera_frame), twist_base,
-                                          qdot_limits=velocity_limits)
+                                          qdot_limits=velocity_limits, q=q, lower=self.kinematics.lower,
+                                          upper=self.kinematics.upper)
             self.limb.set_joint_velocities(qdot)
             try:
                 look = self.look_for_velocity_loop(look.frame.stamp)
@@ -478,6 +487,9 @@ class PickApplication:
         rospy.loginfo('pick: %s: gripper to %s mm, quaternion %s' % (what, np.round(1000 * xyz, 1).tolist(),
                                                                   np.round(quat, 3).tolist()))
         for _ in range(max_intermediate):
+            path = self.plan_joints(T_base_gripper, what)
+            if path is not None:
+                return self.follow_path(path, what)
             q = self.solve_ik(T_base_gripper, what)
             if q is not None:
                 return self.move_to_joints(q, what)
@@ -490,6 +502,26 @@ class PickApplication:
         raise robot.IKFailure('%s: no IK solution for the gripper at %s mm (nor for intermediate poses)'
                               % (what, np.round(1000 * xyz, 1).tolist()))
 
+    def plan_joints(self, T_base_gripper, what):
+        """Joint-space waypoints (dicts) of the straight Cartesian path to ``T_base_gripper`` on the arm's
+        current branch: IK every ``waypoint_spacing`` (and 10 deg at most), each seeded with the previous
+        solution. Followed without stopping, the gripper stays within a millimetre or so of the straight
+        line (a descent cannot swing the fingers into the block, even near the elbow's singularity).
+        None when a waypoint has no solution."""
+        T_start = self.limb.endpoint_pose()
+        translation, rotation = pick.pose_error(T_start, T_base_gripper)
+        count = max(1, int(np.ceil(max(translation / self.config.waypoint_spacing, rotation / np.radians(10.0)))))
+        path = [self.limb.joint_angles()]
+        for k in range(1, count + 1):
+            try:
+                path.append(self.limb.solve_ik(servo.interpolate_pose(T_start, T_base_gripper, k / count),
+                                               seed=path[-1]))
+            except robot.IKFailure as error:
+                rospy.logwarn('pick: %s: waypoint %d/%d has no IK solution on this branch (%s)'
+                              % (what, k, count, error))
+                return None
+        return path[1:]
+
     def solve_ik(self, T_base_gripper, what):
         """Joint angles for ``T_base_gripper`` from the IK service (seeded with the current angles, then
         the robot's automatic seeding), or None when neither finds a solution."""
@@ -501,18 +533,22 @@ class PickApplication:
         return None
 
     def move_to_joints(self, q, what):
-        """Safety-checked position move; a long one goes in segments of at most the safety's joint step,
-        along the same straight joint-space line."""
+        """Safety-checked position move along the straight joint-space line, cut into segments of at most
+        the safety's joint step (the start-pose move is longer than one servo step may be)."""
         q_start = self.limb.joint_angles()
         names = list(q_start)
         q_target = np.array([q[name] for name in names], dtype=float)
         q_from = np.array([q_start[name] for name in names], dtype=float)
         segments = max(1, int(np.ceil(np.max(np.abs(q_target - q_from)) / self.safety.limits.max_joint_step)))
-        for k in range(1, segments + 1):
-            waypoint = dict(zip(names, q_from + (q_target - q_from) * k / segments))
-            if not self.limb.move_to_joint_positions(waypoint, timeout=10.0, tolerance=SETTLE_TOLERANCE,
-                                                     check=self.check_robot):
-                raise PickFailure('motion_timeout', '%s: the arm did not arrive' % what)
+        self.follow_path([dict(zip(names, q_from + (q_target - q_from) * k / segments))
+                          for k in range(1, segments + 1)], what)
+
+    def follow_path(self, waypoints, what):
+        """Stream a joint-space path (safety-checked segment by segment), watching the robot state."""
+        timeout = 10.0 + 2.0 * len(waypoints)
+        if not self.limb.follow_joint_path(waypoints, timeout=timeout, tolerance=SETTLE_TOLERANCE,
+                                           check=self.check_robot):
+            raise PickFailure('motion_timeout', '%s: the arm did not arrive' % what)
 
     def check_deadline(self):
         if self.clock.elapsed() > self.config.timeout:

@@ -437,7 +437,7 @@ def plot_depth(samples, out_dir):
             ax.plot([s.sample + 1 for s in mine], [s.distance_error_mm for s in mine], 'x--', color=colour,
                     label='%s: gripper-to-centroid distance' % condition)
         if pose in THESIS_DEPTH_ERROR_MM:
-            ax.axhline(THESIS_DEPTH_ERROR_MM[pose], color='grey', ls=':', label='thesis average error')
+            ax.axhline(THESIS_DEPTH_ERROR_MM[pose], color='grey', ls=':', label='thesis average error (sign not given)')
         ax.axhline(0.0, color='black', lw=0.5)
         ax.set_xlabel('sample')
         ax.set_ylabel('estimated - true (mm)')

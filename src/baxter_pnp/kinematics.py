@@ -160,10 +160,13 @@ class ArmKinematics(PyBulletClientOwner):
            n_random_seeds=12):
         """7 joint angles (rad, inside the limits) putting ``frame`` at ``T_base_target``, or None.
 
-        Tries the ``seed`` (e.g. the current angles), the neutral pose and ``n_random_seeds``
-        reproducible random configurations: each is started with PyBullet's null-space IK and
-        refined with damped least squares on the exact FK. A solution must be within ``pos_tol`` (m)
-        and ``rot_tol`` (rad) of the target. Targets beyond the arm's reach return None at once.
+        First damped least squares straight from the ``seed`` (e.g. the current angles): for a nearby
+        target that is the solution closest to the seed, with no motion in the arm's null space, so
+        successive targets along a path get successive, continuous solutions. Then the seed, the
+        neutral pose and ``n_random_seeds`` reproducible random configurations, each started with
+        PyBullet's null-space IK and refined with damped least squares on the exact FK. A solution must
+        be within ``pos_tol`` (m) and ``rot_tol`` (rad) of the target. Targets beyond the arm's reach
+        return None at once.
         """
         frame = frame or f'{self.side}_gripper'
         T_target = np.asarray(T_base_target, dtype=float)
@@ -174,6 +177,10 @@ class ArmKinematics(PyBulletClientOwner):
         seeds = [] if seed is None else [np.clip(np.asarray(seed, dtype=float), self.lower, self.upper)]
         seeds.append(np.array(NEUTRAL))
         seeds += [rng.uniform(self.lower, self.upper) for _ in range(n_random_seeds)]
+        if seed is not None:
+            q = self._refine(seeds[0], T_target, frame, pos_tol, rot_tol)
+            if q is not None:
+                return q
         for start in seeds:
             q = self._refine(self._pybullet_ik(T_target, frame, start), T_target, frame, pos_tol, rot_tol)
             if q is not None:

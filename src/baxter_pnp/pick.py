@@ -63,6 +63,11 @@ class PickConfig:
     max_linear_speed: float = 0.08          # IBVS/hybrid: camera speed bound (m/s)
     max_angular_speed: float = 0.5          # IBVS/hybrid: camera angular speed bound (rad/s)
     feature_tolerance_px: float = 2.0       # IBVS/hybrid: converged when the RMS feature error is below this (px)
+    view_depth: float = 0.30                # IBVS/hybrid first goal: the block centre this far from the camera (m) ...
+    view_row_fraction: float = 0.75         # ... at this fraction of the image height (below the fingers' image)
+    view_tolerance_px: float = 8.0          # ... reached when the RMS feature error is below this (px)
+    max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
+    waypoint_spacing: float = 0.02          # IK along straight Cartesian paths: waypoints this far apart (m)
     timeout: float = 90.0                   # whole run (s of robot time)
     stream_max_age: float = 2.0             # a robot topic silent for longer (wall s) is lost
     frame_timeout: float = 5.0              # a look waits this long (wall s) for a camera frame
@@ -101,12 +106,14 @@ class PickConfig:
         for key in ('side_length', 'block_height', 'hover_height', 'tip_margin', 'position_tolerance', 'yaw_tolerance',
                     'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
                     'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age',
-                    'frame_timeout', 'robot_wait_timeout'):
+                    'frame_timeout', 'robot_wait_timeout', 'view_depth', 'view_tolerance_px', 'max_residual_px',
+                    'waypoint_spacing'):
             value = getattr(self, key)
             require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
                     'must be a positive number')
         require(0.0 < self.step_fraction <= 1.0, 'step_fraction', 'must be in (0, 1]')
         require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
+        require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
         require(self.block_height - self.grasp_depth >= self.tip_margin, 'grasp_depth',
                 'leaves the gripper tip closer to the table than tip_margin')
@@ -211,6 +218,26 @@ def pbvs_target(T_base_gripper, T_base_goal, T_base_block, config, camera, T_gri
     return servo.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
                                    margin_px=config.view_margin_px, max_translation=config.max_step_translation,
                                    max_rotation=config.max_step_rotation)
+
+
+def view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config):
+    """First goal of the velocity laws: the gripper with the hover pose's orientation, placed so that the
+    camera sees the block's centre ``view_depth`` away, in the image column it has at the hover pose and
+    at ``view_row_fraction`` of the image height.
+
+    At the hover pose the block appears between the fingers, which hide the top of the hand camera's
+    image; a straight image path from a start near the top would pass behind a finger. Going first to
+    this view (block low in the image) and then up to the hover view keeps the block in sight.
+    """
+    R_base_camera = T_base_hover[:3, :3] @ T_gripper_camera[:3, :3]
+    block_at_hover = camera_goal(T_base_hover, T_base_block, T_gripper_camera)[:3, 3]
+    column = camera.project(block_at_hover[None])[0, 0]
+    x, y = camera.undistort_points(np.array([[column, config.view_row_fraction * (camera.height - 1)]]))[0]
+    block_in_camera = config.view_depth * np.array([x, y, 1.0])
+    T_base_camera = np.eye(4)
+    T_base_camera[:3, :3] = R_base_camera
+    T_base_camera[:3, 3] = T_base_block[:3, 3] - R_base_camera @ block_in_camera
+    return T_base_camera @ invert(T_gripper_camera)
 
 
 def raised(T_base_gripper, height):

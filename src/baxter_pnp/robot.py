@@ -432,25 +432,38 @@ class Limb:
     def move_to_joint_positions(self, positions, timeout=15.0, tolerance=JOINT_ANGLE_TOLERANCE, check=None):
         """Move to ``positions`` (dict joint -> rad, missing joints stay, or 7 values); True once arrived.
 
-        The target first passes ``safety.check_joint_target`` (UnsafeCommand, nothing sent). Then
-        POSITION_MODE commands are streamed at 100 Hz along the straight joint-space segment from the
-        current to the target angles, timed so that no joint exceeds the speed ratio x its velocity
-        limit, until every joint is within ``tolerance`` rad of its target (True) or ``timeout`` wall
-        seconds passed (False, warning). StreamLost if the joint states stop meanwhile. ``check()``, if
-        given, is called at every command and may raise to abandon the move (e.g. the robot was stopped).
+        The straight joint-space segment from the current angles: ``follow_joint_path`` with one waypoint.
         """
-        q_start = self.joint_positions()
-        q_target = self._vector(positions, q_start)
-        self.safety.check_joint_target(q_target, q_start)
-        duration = self._ramp_duration(q_start, q_target)
-        change = np.abs(q_target - q_start)
+        return self.follow_joint_path([positions], timeout, tolerance, check)
+
+    def follow_joint_path(self, waypoints, timeout=15.0, tolerance=JOINT_ANGLE_TOLERANCE, check=None):
+        """Move through ``waypoints`` (each a dict joint -> rad or 7 values) without stopping; True once at the last.
+
+        Every segment (from the current angles to the first waypoint, then waypoint to waypoint) first
+        passes ``safety.check_joint_target`` (UnsafeCommand, nothing sent). Then POSITION_MODE commands
+        are streamed at 100 Hz along the piecewise-linear joint-space path, each segment timed so that no
+        joint exceeds the speed ratio x its velocity limit, until every joint is within ``tolerance`` rad
+        of the last waypoint (True) or ``timeout`` wall seconds passed (False, warning). StreamLost if the
+        joint states stop meanwhile. ``check()``, if given, is called at every command and may raise to
+        abandon the move (e.g. the robot was stopped).
+        """
+        path = [self.joint_positions()]
+        for waypoint in waypoints:
+            path.append(self._vector(waypoint, path[-1]))
+        for q_from, q_to in zip(path, path[1:]):
+            self.safety.check_joint_target(q_to, q_from)
+        ends = np.cumsum([0.0] + [self._ramp_duration(a, b) for a, b in zip(path, path[1:])])
+        q_target = path[-1]
+        change = np.abs(q_target - path[0])
         rospy.loginfo(f'{self.side} arm: move to joint positions {np.round(q_target, 4).tolist()} rad '
-                      f'(largest change {change.max():.3f} rad on {self.joint_names[int(np.argmax(change))]}, '
-                      f'ramp {duration:.2f} s at speed ratio {self._speed_ratio:.2f}, timeout {timeout:.1f} s)')
+                      f'({len(waypoints)} segment(s), largest change {change.max():.3f} rad on '
+                      f'{self.joint_names[int(np.argmax(change))]}, ramp {ends[-1]:.2f} s at speed ratio '
+                      f'{self._speed_ratio:.2f}, timeout {timeout:.1f} s)')
         ros_start, deadline = rospy.get_time(), time.monotonic() + timeout
         while True:
             q = self._joint_states.require_fresh(self.max_age).positions
-            if np.all(np.abs(q_target - q) < tolerance):
+            elapsed = rospy.get_time() - ros_start
+            if elapsed >= ends[-1] and np.all(np.abs(q_target - q) < tolerance):
                 rospy.loginfo(f'{self.side} arm: arrived (largest error {np.abs(q_target - q).max():.4f} rad)')
                 return True
             if time.monotonic() > deadline:
@@ -461,9 +474,7 @@ class Limb:
                 raise RobotError('ROS is shutting down')
             if check is not None:
                 check()
-            elapsed = rospy.get_time() - ros_start
-            s = 1.0 if duration <= 0 else min(1.0, max(0.0, elapsed / duration))
-            self._publish(msg.JointCommand.POSITION_MODE, q_start + s * (q_target - q_start))
+            self._publish(msg.JointCommand.POSITION_MODE, _point_on_path(path, ends, elapsed))
             time.sleep(1.0 / COMMAND_RATE_HZ)
 
     def set_joint_velocities(self, velocities, horizon=COMMAND_TIMEOUT):
@@ -493,6 +504,18 @@ class Limb:
         rospy.loginfo(f'{self.side} arm: exit control mode, hold {np.round(q, 4).tolist()} rad')
         self._timeout_pub.publish(Float64(COMMAND_TIMEOUT))
         self._publish(msg.JointCommand.POSITION_MODE, q)
+
+
+def _point_on_path(path, ends, t):
+    """Angles at time ``t`` (s) on a piecewise-linear joint path: ``path`` (k+1 configurations), ``ends``
+    (k+1 cumulative segment end times, ends[0] = 0)."""
+    if t >= ends[-1]:
+        return path[-1]
+    k = int(np.searchsorted(ends, t, side='right')) - 1
+    k = min(max(k, 0), len(path) - 2)
+    span = ends[k + 1] - ends[k]
+    s = 1.0 if span <= 0 else (t - ends[k]) / span
+    return path[k] + s * (path[k + 1] - path[k])
 
 
 # ==================================================================================== gripper

@@ -341,17 +341,31 @@ def camera_twist_to_base(twist_cam, T_base_camera):
     return np.concatenate([R @ twist_cam[:3], R @ twist_cam[3:]])
 
 
-def joint_velocities(J_base, twist_base, damping=1e-3, qdot_limits=None):
+def joint_velocities(J_base, twist_base, damping=1e-3, qdot_limits=None, q=None, lower=None, upper=None,
+                     limit_margin=0.05):
     """Joint velocities (rad/s) giving ``twist_base`` by damped least squares.
 
     ``qdot = J^T (J J^T + damping^2 I)^-1 twist`` with ``J_base`` (6, n) [linear; angular] in base.
-    ``damping`` (same units as J's singular values) bounds the velocities near singularities. If
-    ``qdot_limits`` (n,) rad/s is given and exceeded, all joint velocities are divided by the same
-    factor, so the end effector keeps the twist's direction at a lower speed.
+    ``damping`` (same units as J's singular values) bounds the velocities near singularities. With the
+    current angles ``q`` and the joint limits ``lower``, ``upper`` (rad), a joint within ``limit_margin``
+    of a limit that the solution drives further into it is frozen (its Jacobian column removed) and the
+    rest re-solved: a 7-joint arm keeps the twist with its other joints. If ``qdot_limits`` (n,) rad/s
+    is given and exceeded, all joint velocities are divided by the same factor, so the end effector
+    keeps the twist's direction at a lower speed.
     """
     J = np.asarray(J_base, dtype=float)
     twist = np.asarray(twist_base, dtype=float)
-    qdot = J.T @ np.linalg.solve(J @ J.T + damping ** 2 * np.eye(J.shape[0]), twist)
+    free = np.ones(J.shape[1], dtype=bool)
+    while True:
+        J_free = J * free
+        qdot = J_free.T @ np.linalg.solve(J_free @ J_free.T + damping ** 2 * np.eye(J.shape[0]), twist)
+        if q is None:
+            break
+        blocked = free & (((np.asarray(q) <= np.asarray(lower) + limit_margin) & (qdot < 0)) |
+                          ((np.asarray(q) >= np.asarray(upper) - limit_margin) & (qdot > 0)))
+        if not blocked.any():
+            break
+        free &= ~blocked
     if qdot_limits is not None:
         overshoot = np.max(np.abs(qdot) / np.asarray(qdot_limits, dtype=float))
         if overshoot > 1.0:

@@ -392,14 +392,26 @@ class _ArmMotion:
 
 
 def profile_step(position, velocity, target, max_speed, acceleration, dt):
-    """One ``dt`` step of a per-joint set-point moving to ``target`` with |velocity| <= ``max_speed`` and
-    |acceleration| <= ``acceleration`` (braking in time to stop on the target). Returns (position, velocity)."""
+    """One ``dt`` step of the arm's set-point toward ``target`` (7 joints), synchronised like a robot's
+    joint interpolator: the desired velocity is proportional to the remaining error, so the joints move
+    along the straight joint-space line and arrive together; each joint stays within its ``max_speed``
+    and slows in time to stop on the target (``acceleration``); the velocity vector changes by at most
+    ``acceleration * dt`` (largest joint), keeping its direction while it speeds up. Returns (position,
+    velocity)."""
     error = target - position
-    stopping_speed = np.sqrt(2.0 * acceleration * np.abs(error))
-    desired = np.sign(error) * np.minimum(max_speed, stopping_speed)
-    velocity = velocity + np.clip(desired - velocity, -acceleration * dt, acceleration * dt)
+    distance = np.abs(error)
+    if distance.max() <= 1e-9:
+        return target.copy(), np.zeros_like(velocity)
+    moving = distance > 1e-12
+    safe = np.where(moving, distance, 1.0)
+    gain = np.min(np.where(moving, np.minimum(max_speed / safe, np.sqrt(2.0 * acceleration / safe)), np.inf))
+    change = gain * error - velocity
+    largest = np.abs(change).max()
+    if largest > acceleration * dt:
+        change *= acceleration * dt / largest
+    velocity = velocity + change
     new_position = position + velocity * dt
-    arrived = (np.sign(target - new_position) != np.sign(error)) | (np.abs(error) <= 1e-9)
+    arrived = (np.sign(target - new_position) != np.sign(error)) | ~moving
     return np.where(arrived, target, new_position), np.where(arrived, 0.0, velocity)
 
 

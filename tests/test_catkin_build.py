@@ -16,6 +16,7 @@ def test_catkin_make_then_rosrun(tmp_path):
     (workspace / 'src').mkdir(parents=True)
     os.symlink(REPO, workspace / 'src' / 'baxter_pnp')
     env = {k: v for k, v in os.environ.items() if not k.startswith('ROS_') and k != 'CMAKE_PREFIX_PATH'}
+    env['PWD'] = str(workspace)           # catkin_make takes its base path from PWD, not from the cwd
     build = subprocess.run(['catkin_make', '-DPYTHON_EXECUTABLE=/usr/bin/python3'], cwd=workspace,
                            capture_output=True, text=True, timeout=300, env=env)
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]

@@ -38,6 +38,7 @@ from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
 
 DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
 SETTLE_TOLERANCE = 0.003        # rad: a position move counts as arrived (and the arm as still) within this
+MIN_SETTLE_TOLERANCE = 0.0005   # rad: ... or within a third of a smaller move, but never tighter than this
 
 
 class PickFailure(RuntimeError):
@@ -163,6 +164,7 @@ class PickApplication:
         ``robot_wait_timeout`` s. A service missing on a robot that is otherwise alive is not waited for."""
         c = self.config
         for recovery in range(c.max_recoveries + 1):
+            self._clock_jumps_before = self.clock.jumps
             try:
                 return self.pick()
             except (robot.StreamLost, robot.ServiceUnavailable, RobotRestarted) as error:
@@ -172,11 +174,14 @@ class PickApplication:
                 self.wait_for_robot()
 
     def recoverable(self, error):
-        """A lost stream or a restart can end; a missing service is waited for only if the robot's own
-        streams stopped too (the whole robot went away), which a short probe tells."""
+        """A lost stream or a restart can end; a missing service is waited for only if the whole robot
+        went away: its clock went back (it restarted) or its own streams stopped too (a short probe)."""
         if not isinstance(error, robot.ServiceUnavailable):
             return True
         time.sleep(1.0)
+        self.clock.elapsed()
+        if self.clock.jumps > self._clock_jumps_before:
+            return True
         try:
             self.enabler.require_fresh(0.5)
             self.limb.require_fresh(0.5)
@@ -238,8 +243,9 @@ class PickApplication:
         raise PickFailure('grasp_missed', 'no grip after %d attempts' % c.max_grasp_attempts)
 
     # ================================================================================ perception
-    def look(self, after_stamp=None):
-        """Wait for a frame newer than ``after_stamp`` (ROS time), detect and estimate the block."""
+    def look(self, after_stamp=None, on_table=True):
+        """Wait for a frame newer than ``after_stamp`` (ROS time), detect and estimate the block (with
+        ``on_table``, only estimates that put it on the table are believed)."""
         c = self.config
         self.check_robot()
         try:
@@ -254,15 +260,24 @@ class PickApplication:
         observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, c.side_length,
                                                  c.block_height, shape=c.shape, colour=c.colour,
                                                  method=c.estimator, table_plane=plane)
-        target = self._choose(observations, frame, T_base_camera)
+        target = self._choose(observations, frame, T_base_camera, on_table)
         T_base_block = None if target is None else T_base_camera @ target.pose.T_camera_object
         self.publish_view(frame, observations, T_base_block)
         return Look(frame, T_base_gripper, T_base_camera, target, T_base_block)
 
-    def _choose(self, observations, frame, T_base_camera):
-        """The target among the estimated observations: the one nearest the last estimate (tracking), else
-        the largest / most central (vision.select_target)."""
-        posed = [o for o in observations if o.pose is not None and o.pose.residual_px <= self.config.max_residual_px]
+    def _choose(self, observations, frame, T_base_camera, on_table=True):
+        """The target among the believable estimates (reprojection residual below ``max_residual_px`` and,
+        ``on_table``, top face within ``max_height_error`` of where the table puts it): the one nearest
+        the last estimate (tracking), else the largest / most central (vision.select_target)."""
+        c = self.config
+        expected_z = c.table_top_z + c.block_height
+
+        def believable(o):
+            if o.pose is None or o.pose.residual_px > c.max_residual_px:
+                return False
+            height = (T_base_camera @ o.pose.T_camera_object)[2, 3]
+            return not on_table or abs(height - expected_z) <= c.max_height_error
+        posed = [o for o in observations if believable(o)]
         if not posed:
             return None
         if self.last_block is not None:
@@ -439,7 +454,7 @@ class PickApplication:
         if not self.gripper.gripping():
             rospy.logwarn('pick: the block slipped out while lifting')
             return False
-        look = self.look(after_stamp=rospy.get_time())
+        look = self.look(after_stamp=rospy.get_time(), on_table=False)
         if look.target is not None:
             T_gripper_block_seen = invert(look.T_base_gripper) @ look.T_base_block
             offset = T_gripper_block_seen[:3, 3] - self.T_gripper_block[:3, 3]
@@ -544,9 +559,15 @@ class PickApplication:
                           for k in range(1, segments + 1)], what)
 
     def follow_path(self, waypoints, what):
-        """Stream a joint-space path (safety-checked segment by segment), watching the robot state."""
+        """Stream a joint-space path (safety-checked segment by segment), watching the robot state.
+
+        Arrival needs every joint within SETTLE_TOLERANCE of the end, or within a third of the move's
+        largest joint change when that is smaller (a small servo step must actually be made)."""
         timeout = 10.0 + 2.0 * len(waypoints)
-        if not self.limb.follow_joint_path(waypoints, timeout=timeout, tolerance=SETTLE_TOLERANCE,
+        start = self.limb.joint_angles()
+        change = max(abs(waypoints[-1][name] - start[name]) for name in start)
+        tolerance = max(MIN_SETTLE_TOLERANCE, min(SETTLE_TOLERANCE, change / 3.0))
+        if not self.limb.follow_joint_path(waypoints, timeout=timeout, tolerance=tolerance,
                                            check=self.check_robot):
             raise PickFailure('motion_timeout', '%s: the arm did not arrive' % what)
 

@@ -67,6 +67,7 @@ class PickConfig:
     view_row_fraction: float = 0.75         # ... at this fraction of the image height (below the fingers' image)
     view_tolerance_px: float = 8.0          # ... reached when the RMS feature error is below this (px)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
+    max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
     waypoint_spacing: float = 0.02          # IK along straight Cartesian paths: waypoints this far apart (m)
     timeout: float = 90.0                   # whole run (s of robot time)
     stream_max_age: float = 2.0             # a robot topic silent for longer (wall s) is lost
@@ -107,7 +108,7 @@ class PickConfig:
                     'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
                     'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age',
                     'frame_timeout', 'robot_wait_timeout', 'view_depth', 'view_tolerance_px', 'max_residual_px',
-                    'waypoint_spacing'):
+                    'max_height_error', 'waypoint_spacing'):
             value = getattr(self, key)
             require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
                     'must be a positive number')

@@ -325,7 +325,9 @@ class PickApplication:
                 rospy.logwarn('pick: block cut by the image border: re-centring on it')
                 T_next = self.recentred(look)
             else:
-                rospy.logwarn('pick: block not in view (%d/%d): backing off %.0f mm upward'
+                if lost == c.max_lost:
+                    break
+                rospy.logwarn('pick: block not in view (re-acquisition %d of %d): backing off %.0f mm upward'
                               % (lost + 1, c.max_lost, 1000 * c.backoff_height))
                 T_next = pick.raised(look.T_base_gripper, c.backoff_height)
             self.move_to_pose(T_next, 're-acquire')
@@ -454,19 +456,31 @@ class PickApplication:
         if not self.gripper.gripping():
             rospy.logwarn('pick: the block slipped out while lifting')
             return False
+        return self.verify_hold(T_base_block)
+
+    def verify_hold(self, T_base_block_before):
+        """The look after lifting: the grip is refuted only if the block is seen still lying where it was;
+        a block seen in the hand confirms it; anything else (occluded by the fingers, an odd estimate)
+        leaves the gripper's word (gripping) standing, with a warning."""
+        c = self.config
         look = self.look(after_stamp=rospy.get_time(), on_table=False)
-        if look.target is not None:
-            T_gripper_block_seen = invert(look.T_base_gripper) @ look.T_base_block
-            offset = T_gripper_block_seen[:3, 3] - self.T_gripper_block[:3, 3]
-            if np.linalg.norm(offset) > 0.02:
-                rospy.logwarn('pick: a look finds the block %.1f mm from where it should be in the hand'
-                              % (1000 * np.linalg.norm(offset)))
-                return False
+        if look.target is None:
+            rospy.logwarn('pick: the look after lifting does not see the block (occluded?); gripper reports gripping')
+            return True
+        left_behind = (abs(look.T_base_block[2, 3] - (c.table_top_z + c.block_height)) < 0.01 and
+                       np.linalg.norm(look.T_base_block[:2, 3] - T_base_block_before[:2, 3]) < 0.02)
+        if left_behind:
+            rospy.logwarn('pick: a look finds the block still on the table: the gripper holds something else')
+            return False
+        T_gripper_block_seen = invert(look.T_base_gripper) @ look.T_base_block
+        offset = float(np.linalg.norm(T_gripper_block_seen[:3, 3] - self.T_gripper_block[:3, 3]))
+        if offset <= 0.02:
             self.T_gripper_block = T_gripper_block_seen
             rospy.loginfo('pick: grasp verified by a look (block %.1f mm from the expected place in the hand)'
-                          % (1000 * np.linalg.norm(offset)))
+                          % (1000 * offset))
         else:
-            rospy.logwarn('pick: the look after lifting does not see the block (occluded?); gripper reports gripping')
+            rospy.logwarn('pick: the look after lifting is inconclusive (block estimated %.1f mm from its expected '
+                          'place in the hand); gripper reports gripping' % (1000 * offset))
         return True
 
     def place(self):

@@ -111,10 +111,11 @@ def test_score_measures_the_lift_and_the_centring_in_the_gripper_frame():
 
 def test_pre_close_sample_is_the_last_one_before_the_first_close():
     T = np.eye(4)
-    positions = [0.0, 40.0, 100.0, 100.0, 100.0, 97.0, 80.0, 60.0, 100.0, 50.0]    # calibrate, open, close, ...
+    positions = [0.0, 40.0, 100.0, 100.0, 99.0, 97.0, 93.0, 93.0, 100.0, 50.0]    # calibrate, open, close, ...
     samples = [trials.GroundTruthSample(0.1 * k, T * k, T, p) for k, p in enumerate(positions)]
-    assert trials.pre_close_sample(samples) is samples[5]
+    assert trials.pre_close_sample(samples) is samples[4]      # 97 is the first point more than 2 below 100
     assert trials.pre_close_sample(samples[:5]) is None
+    assert trials.pre_close_sample(samples[:2]) is None          # calibrating is not closing
 
 
 def test_summary_counts_verified_picks_and_labels_failures(tmp_path):

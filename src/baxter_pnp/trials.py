@@ -426,15 +426,16 @@ class GroundTruthMonitor:
             subscriber.unregister()
 
 
-def pre_close_sample(samples, open_above=95.0, closing_below=90.0):
-    """The last sample before the gripper first started closing: its opening fell below ``closing_below``
-    % after having been above ``open_above`` % (calibration opens it first). None if it never closed."""
-    was_open = False
+def pre_close_sample(samples, open_above=95.0, drop=2.0):
+    """The last sample before the gripper first started closing: once open (above ``open_above`` %;
+    calibration opens it first), its opening fell more than ``drop`` points below the widest seen since
+    (a block held crooked can stop the fingers above 90 %). None if it never closed."""
+    widest = None
     for k, position in enumerate(sample.gripper_percent for sample in samples):
+        if widest is not None and position < widest - drop:
+            return samples[k - 1]
         if position >= open_above:
-            was_open = True
-        elif was_open and position < closing_below:
-            return samples[k - 1] if k > 0 else None
+            widest = max(position, widest or position)
     return None
 
 

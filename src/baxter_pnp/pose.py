@@ -46,7 +46,7 @@ an object resting on something from forcing a wrong normal when the image clearl
 import functools
 import math
 from dataclasses import dataclass
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import cv2
 import numpy as np
@@ -152,6 +152,7 @@ class _Observation:
     normalised: np.ndarray     # (n, 2) X/Z, Y/Z
     ideal_px: np.ndarray       # (n, 2) undistorted pixels
     K: np.ndarray              # (3, 3)
+    focal_px: np.ndarray       # (2,) fx, fy (px)
     mean_edge_px: float
 
     @classmethod
@@ -163,42 +164,43 @@ class _Observation:
             raise PoseEstimationError(f'{expected}, got {vertices_px!r}') from None
         if vertices_px.shape != (model.n, 2):
             raise PoseEstimationError(f'{expected}, got shape {vertices_px.shape}')
-        if not np.all(np.isfinite(vertices_px)):
+        if not np.isfinite(vertices_px).all():
             raise PoseEstimationError('vertices contain non-finite values')
         normalised = camera.undistort_points(vertices_px)
-        if not np.all(np.isfinite(normalised)):
+        if not np.isfinite(normalised).all():
             raise PoseEstimationError('vertices could not be undistorted')
         ideal_px = camera.normalised_to_pixels(normalised)
-        _check_simple_polygon(ideal_px)
-        edges = np.roll(ideal_px, -1, axis=0) - ideal_px
-        perimeter = np.linalg.norm(edges, axis=1).sum()
-        area = _signed_area(ideal_px)
+        corners = ideal_px.tolist()
+        _check_simple_polygon(corners)
+        perimeter = sum(math.dist(a, b) for a, b in zip(corners, corners[1:] + corners[:1]))
+        area = _signed_area(corners)
         if abs(area) <= MIN_AREA_PERIMETER_RATIO * perimeter ** 2:
             raise PoseEstimationError(f'degenerate polygon: area {abs(area):.3g} px^2 for a perimeter of '
                                       f'{perimeter:.3g} px (collinear or coincident vertices)')
         if area > 0:   # counter-clockwise about the camera's z: detector order, reverse to model order
             normalised, ideal_px = normalised[::-1].copy(), ideal_px[::-1].copy()
-        return cls(normalised, ideal_px, camera.K.copy(), perimeter / model.n)
+        K = camera.K.copy()
+        return cls(normalised, ideal_px, K, K.diagonal()[:2].copy(), perimeter / model.n)
 
 
-def _signed_area(xy):
-    """Shoelace area of a polygon (units of xy squared); > 0 when counter-clockwise in (u, v)."""
-    x, y = xy[:, 0], xy[:, 1]
-    return 0.5 * float(x @ np.roll(y, -1) - np.roll(x, -1) @ y)
+def _signed_area(corners):
+    """Shoelace area of a polygon, a list of (x, y) (units of xy squared); > 0 when counter-clockwise in (u, v)."""
+    return 0.5 * sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]))
 
 
-def _check_simple_polygon(xy):
-    """Raise PoseEstimationError when two non-adjacent edges of the closed polygon ``xy`` intersect."""
-    n = len(xy)
+def _check_simple_polygon(corners):
+    """Raise PoseEstimationError when two non-adjacent edges of the closed polygon ``corners`` ((x, y) list) cross."""
+    n = len(corners)
 
     def orientation(a, b, c):
-        return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+        turn = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        return (turn > 0) - (turn < 0)
 
     for i in range(n):
         for j in range(i + 2, n):
             if i == 0 and j == n - 1:
                 continue   # adjacent through the closing edge
-            p, q, r, s = xy[i], xy[(i + 1) % n], xy[j], xy[(j + 1) % n]
+            p, q, r, s = corners[i], corners[(i + 1) % n], corners[j], corners[(j + 1) % n]
             if (orientation(p, q, r) != orientation(p, q, s)
                     and orientation(r, s, p) != orientation(r, s, q)):
                 raise PoseEstimationError(f'self-intersecting vertex order: edges {i}-{(i + 1) % n} '
@@ -219,15 +221,14 @@ def _solve_sqp(observation, model, table_normal, initial):
             raise ValueError('no valid initial pose from IPPE or SQPnP')
         R0, t0 = _best_candidate(candidates, observation, model, table_normal)
     fit = _PolygonFit(observation, model, table_normal, R0, t0)
-    result = minimize(fit.objective, fit.v0, jac=True, method='SLSQP',
+    result = minimize(fit.objective, fit.v0, jac=fit.gradient, method='SLSQP',
                       constraints={'type': 'eq', 'fun': fit.constraints, 'jac': fit.constraints_jacobian},
                       options={'ftol': SQP_FTOL_PX2, 'maxiter': SQP_MAX_ITERATIONS})
     X = fit.positions(result.x) * model.side
-    if not np.all(np.isfinite(X)):
+    if not np.isfinite(X).all():
         raise ValueError(f'SLSQP diverged ({result.message})')
-    centre = X.mean(axis=0)
-    rotation, _ = Rotation.align_vectors(X - centre, model.vertices)
-    return rotation.as_matrix(), centre
+    centre = X.sum(axis=0) / len(X)      # X.mean(axis=0), without its overhead
+    return _kabsch_rotation(X - centre, model.vertices), centre
 
 
 def _solve_ippe(observation, model, table_normal, initial):
@@ -254,7 +255,7 @@ _SOLVERS = {'sqp': _solve_sqp, 'ippe': _solve_ippe, 'sqpnp': _solve_sqpnp}
 # returned |rvec| = 45 rad and a wrong pose for a square seen straight on); turned, it is near identity.
 _FLIP = np.array([1.0, -1.0, -1.0])
 # Flipped-model vertex order of OpenCV's IPPE_SQUARE object points (-L/2, L/2), (L/2, L/2), (L/2, -L/2), (-L/2, -L/2).
-_IPPE_SQUARE_ORDER = [2, 3, 0, 1]
+_IPPE_SQUARE_ORDER = np.array([2, 3, 0, 1])
 
 
 def _closed_form_candidates(observation, model):
@@ -269,7 +270,7 @@ def _closed_form_candidates(observation, model):
         _, rvecs, tvecs, _ = cv2.solvePnPGeneric(flipped, image, K, None, flags=cv2.SOLVEPNP_IPPE)
     candidates = []
     for rvec, tvec in zip(rvecs, tvecs):
-        if np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec)):
+        if np.isfinite(rvec).all() and np.isfinite(tvec).all():
             R, t = _from_opencv(rvec, tvec)
             if _invalidity(R, t, observation, model) is None:
                 candidates.append((R, t))
@@ -303,6 +304,18 @@ def _matched_initial(T_initial, observation, model):
     return R @ _rotz(shift * model.symmetry_angle), t
 
 
+class _FitPoint(NamedTuple):
+    """What the SQP callbacks need at one point ``v`` (see ``_PolygonFit``)."""
+    q: np.ndarray               # (3n,) chart coordinates
+    X: np.ndarray               # (n, 3) positions in side units
+    d_position: np.ndarray      # (3n, 3n) dX/dv
+    differences: np.ndarray     # (3n - 4, 3) pair differences, then edges from vertex 0 (``_PolygonGeometry``)
+    e1_skew: Optional[np.ndarray]    # [X_1 - X_0]x (n > 3)
+    face_normal: Optional[np.ndarray]   # (X_1 - X_0) x (X_2 - X_0) (n > 3)
+    image_error: np.ndarray     # (3n,) ideal pixel errors (u, v) of each vertex, 0 for its depth w
+    mismatch: Optional[np.ndarray]      # Newell normal / model double area - table normal (with the prior)
+
+
 class _PolygonFit:
     """The SQP problem of one observation: chart, objective and equality constraints, all analytic.
 
@@ -321,119 +334,142 @@ class _PolygonFit:
     ``v = P^-1 q`` with ``P = (I + w J_n^T J_n)^(-1/2)`` (``J_n``: Jacobian of the normal mismatch at
     the start, ``w`` the prior weight), so that BFGS again starts from about the right curvature
     (4 iterations instead of 7). Without the prior ``v = q``. The public methods take ``v``.
+
+    Speed (the problem is tiny, so numpy's per-call overhead dominates): SLSQP asks for the
+    objective, its gradient, the constraints and their Jacobian at the same points, so what they
+    share is computed once per point (``_at``); derivatives are taken with respect to the flattened
+    positions ``X`` and carried to ``v`` by one product with the chart's derivative ``dX/dv``.
     """
 
     def __init__(self, observation, model, table_normal, R0, t0):
         self.n, self.side, self.table_normal = model.n, model.side, table_normal
-        self.fx, self.fy = observation.K[0, 0], observation.K[1, 1]
-        self.observed_px = observation.normalised * (self.fx, self.fy)
-        self.depth_unit = t0[2]
+        fx, fy = observation.focal_px
+        self.geometry = g = _polygon_geometry(model.n)
         self.prior_weight = (PIXEL_SIGMA_FLOOR_PX / TABLE_NORMAL_SIGMA_RAD) ** 2
-        self.geometry = _polygon_geometry(model.n)
+        depth_unit = t0[2]
+        sx, sy, sz = depth_unit / (fx * model.side), depth_unit / (fy * model.side), depth_unit / model.side
+        self._scale = np.array([sx, sy, sz])      # X = (u w sx, v w sy, w sz)
+        # Q @ this: the chart derivative's variable entries dX_x/du, dX_y/dv, dX_x/dw, dX_y/dw = w sx, w sy, u sx, v sy
+        self._d_position_entries = np.array([[0.0, 0.0, sx, 0.0], [0.0, 0.0, 0.0, sy], [sx, sy, 0.0, 0.0]])
+        self._d_position = np.zeros((3 * model.n, 3 * model.n))   # dX/dq with its constant entries dX_z/dw
+        self._d_position[g.depth_diagonal, g.depth_diagonal] = sz
+        observed_q = np.zeros((model.n, 3))
+        observed_q[:, :2] = observation.normalised * observation.focal_px
+        self._observed_q = observed_q.ravel()
         X0 = _vertices_in_camera(R0, t0, model)
-        q0 = np.column_stack([self.fx * X0[:, 0] / X0[:, 2], self.fy * X0[:, 1] / X0[:, 2],
-                              X0[:, 2] / self.depth_unit]).ravel()
-        self._memo_q, self._memo = None, None
+        Q0 = X0 / X0[:, 2:]
+        Q0[:, :2] *= observation.focal_px
+        Q0[:, 2] = X0[:, 2] / depth_unit
+        q0 = Q0.ravel()
+        self._memo_key, self._memo = None, None
         self.preconditioner = None
         if table_normal is not None:
-            X, factors = self._chart(q0)
-            g = self.geometry
-            d_newell = _cross((X[g.next] - X[g.previous])[None], np.eye(3)[:, None, :])   # d N_c / d X_i
-            J_normal = self._to_chart(d_newell / g.double_area, factors).reshape(3, -1)
-            eigenvalues, eigenvectors = np.linalg.eigh(np.eye(len(q0)) + self.prior_weight * J_normal.T @ J_normal)
-            self.preconditioner = (eigenvectors / np.sqrt(eigenvalues)) @ eigenvectors.T
-        self.v0 = q0 if self.preconditioner is None else np.linalg.solve(self.preconditioner, q0)
+            point = self._at(q0)
+            # [c, i] = dN_c / dX_i = (X_{i+1} - X_{i-1}) x e_c
+            d_newell = (point.X[g.next] - point.X[g.previous]) @ _UNIT_SKEWS
+            J_normal = d_newell.reshape(3, -1) @ point.d_position / g.double_area
+            # with J_n = U S V^T (thin SVD), I + w J_n^T J_n = I + V w S^2 V^T, whose power p is
+            # I + V ((1 + w S^2)^p - 1) V^T
+            _, singular_values, vt = np.linalg.svd(J_normal, full_matrices=False)
+            curvature = 1.0 + self.prior_weight * singular_values ** 2
+            self.preconditioner = np.eye(len(q0)) + (vt.T * (curvature ** -0.5 - 1.0)) @ vt
+            q0 = q0 + vt.T @ ((curvature ** 0.5 - 1.0) * (vt @ q0))   # v0 = P^-1 q0
+            self._memo_key = None     # v now means P^-1 q
+        self.v0 = q0
 
-    def _q(self, v):
-        return v if self.preconditioner is None else self.preconditioner @ v
-
-    def _chart(self, q):
-        """(positions (n, 3) in side units, (z / fx, z / fy, a, b) factors of the chart's derivative)."""
-        if self._memo_q is None or not np.array_equal(q, self._memo_q):
-            Q = q.reshape(-1, 3)
-            z = Q[:, 2] * self.depth_unit
-            a, b = Q[:, 0] / self.fx, Q[:, 1] / self.fy
-            X = np.empty_like(Q)
-            X[:, 0], X[:, 1], X[:, 2] = a * z, b * z, z
-            self._memo_q, self._memo = q.copy(), (X / self.side, (z / self.fx, z / self.fy, a, b))
+    def _at(self, v):
+        """The ``_FitPoint`` at ``v`` (memoised for the last ``v``)."""
+        key = v.tobytes()
+        if key == self._memo_key:
+            return self._memo
+        g = self.geometry
+        q = v.copy() if self.preconditioner is None else self.preconditioner @ v
+        Q = q.reshape(-1, 3)
+        X = Q * self._scale
+        X[:, :2] *= Q[:, 2:]
+        d_position = self._d_position.copy()
+        d_position.reshape(-1)[g.chart_entries] = (Q @ self._d_position_entries).ravel()
+        if self.preconditioner is not None:
+            d_position = d_position @ self.preconditioner
+        image_error = q - self._observed_q
+        image_error[2::3] = 0.0            # the objective does not depend on the depths
+        differences = g.differences @ X
+        e1_skew = face_normal = mismatch = None
+        if self.n > 3:
+            e1_skew = _skew(differences[g.distance_count])
+            face_normal = e1_skew @ differences[g.distance_count + 1]
+        if self.table_normal is not None:
+            # Newell normal: sum_i X_i x X_{i+1} = 2 * area * unit normal on the constraint manifold.
+            outer = X.T @ X[g.next]                 # sum_i X_i X_{i+1}^T: its antisymmetric part is N
+            newell = np.array([outer[1, 2] - outer[2, 1], outer[2, 0] - outer[0, 2], outer[0, 1] - outer[1, 0]])
+            mismatch = newell / g.double_area - self.table_normal
+        self._memo_key = key
+        self._memo = _FitPoint(q, X, d_position, differences, e1_skew, face_normal, image_error, mismatch)
         return self._memo
 
     def positions(self, v):
         """(n, 3) vertex positions in side units."""
-        return self._chart(self._q(v))[0]
-
-    def _to_chart(self, G, factors):
-        """Derivatives (..., n, 3) with respect to side-unit positions -> with respect to ``q``."""
-        dx_du, dy_dv, a, b = factors
-        out = np.empty_like(G)
-        out[..., 0] = G[..., 0] * dx_du
-        out[..., 1] = G[..., 1] * dy_dv
-        out[..., 2] = (G[..., 0] * a + G[..., 1] * b + G[..., 2]) * self.depth_unit
-        return out / self.side
+        return self._at(v).X
 
     def objective(self, v):
-        """(value, gradient): half the squared ideal-pixel error (px^2) plus the table-normal prior."""
-        q = self._q(v)
-        Q = q.reshape(-1, 3)
-        error = Q[:, :2] - self.observed_px
-        value = 0.5 * float(np.sum(error * error))
-        grad = np.zeros_like(Q)
-        grad[:, :2] = error
-        if self.table_normal is not None:
-            # Newell normal: sum_i X_i x X_{i+1} = 2 * area * unit normal on the constraint manifold.
-            X, factors = self._chart(q)
-            g = self.geometry
-            after = X[g.next]
-            outer = X.T @ after                     # sum_i X_i X_{i+1}^T: its antisymmetric part is N
-            newell = np.array([outer[1, 2] - outer[2, 1], outer[2, 0] - outer[0, 2], outer[0, 1] - outer[1, 0]])
-            mismatch = newell / g.double_area - self.table_normal
-            value += 0.5 * self.prior_weight * (mismatch @ mismatch)
-            # d(N . m)/dX_i = (X_{i+1} - X_{i-1}) x m, as rows: (X_{i+1} - X_{i-1}) @ [m]x
-            d_newell = (after - X[g.previous]) @ _skew(mismatch)
-            grad += self._to_chart((self.prior_weight / g.double_area) * d_newell, factors)
-            return value, self.preconditioner.T @ grad.ravel()
-        return value, grad.ravel()
+        """Half the squared ideal-pixel error (px^2) plus the table-normal prior."""
+        point = self._at(v)
+        value = 0.5 * float(point.image_error @ point.image_error)
+        if point.mismatch is not None:
+            value += 0.5 * self.prior_weight * float(point.mismatch @ point.mismatch)
+        return value
+
+    def gradient(self, v):
+        """(3n,) gradient of ``objective`` with respect to ``v``."""
+        point = self._at(v)
+        if point.mismatch is None:
+            return point.image_error
+        # d(N . m)/dX_i = (X_{i+1} - X_{i-1}) x m, as rows: (X_{i+1} - X_{i-1}) @ [m]x
+        g = self.geometry
+        d_newell = (point.X[g.next] - point.X[g.previous]) @ _skew(point.mismatch)
+        prior_gradient = (self.prior_weight / g.double_area) * d_newell.ravel() @ point.d_position
+        return point.image_error @ self.preconditioner + prior_gradient
 
     def constraints(self, v):
         """(3n - 6,) constraint values (side units): squared distances minus the model's, triple products."""
-        X, g = self.positions(v), self.geometry
-        diff = X[g.first] - X[g.second]
-        values = np.einsum('ij,ij->i', diff, diff) - g.squared_lengths
+        point, g = self._at(v), self.geometry
+        pairs = point.differences[:g.distance_count]
+        values = np.einsum('ij,ij->i', pairs, pairs) - g.squared_lengths
         if self.n == 3:
             return values
-        edges = X[1:] - X[0]
-        return np.concatenate([values, edges[2:] @ (_skew(edges[0]) @ edges[1])])
+        return np.concatenate([values, point.differences[g.distance_count + 2:] @ point.face_normal])
 
     def constraints_jacobian(self, v):
         """(3n - 6, 3n) Jacobian of ``constraints`` with respect to ``v``."""
-        X, factors = self._chart(self._q(v))
-        g = self.geometry
-        diff = 2.0 * (X[g.first] - X[g.second])
-        parts = [diff, -diff]
+        point, g = self._at(v), self.geometry
+        J = np.zeros((3 * self.n - 6, self.n, 3))
+        J[:g.distance_count] = g.distance_pattern * point.differences[:g.distance_count, None, :]
         if self.n > 3:
             # derivatives of (X_k - X_0) . (e1 x e2), e1 = X_1 - X_0, e2 = X_2 - X_0, as rows
-            edges = X[1:] - X[0]
-            e1_skew, e2_skew, ek = _skew(edges[0]), _skew(edges[1]), edges[2:]
-            d1, d2 = ek @ e2_skew.T, ek @ e1_skew          # e2 x ek, ek x e1
-            dk = np.broadcast_to(e1_skew @ edges[1], d1.shape)
-            parts += [d1, d2, dk, -(d1 + d2 + dk)]
-        J = np.zeros((3 * self.n - 6, self.n, 3))
-        J[g.jacobian_rows, g.jacobian_vertices] = np.concatenate(parts)
-        J = self._to_chart(J, factors).reshape(len(J), -1)
-        return J if self.preconditioner is None else J @ self.preconditioner
+            ek = point.differences[g.distance_count + 2:]
+            d1 = ek @ _skew(point.differences[g.distance_count + 1]).T      # e2 x ek
+            d2 = ek @ point.e1_skew                                          # ek x e1
+            rows = g.coplanar_rows
+            J[rows, 1], J[rows, 2], J[rows, g.coplanar_last] = d1, d2, point.face_normal
+            J[rows, 0] = -(d1 + d2 + point.face_normal)
+        return J.reshape(len(J), -1) @ point.d_position
 
 
 @dataclass(frozen=True)
 class _PolygonGeometry:
-    """Constant structure of the unit-side regular n-gon's constraints (see ``_PolygonFit``)."""
-    first: np.ndarray              # (2n - 3,) vertex pairs of the distance constraints
-    second: np.ndarray
-    squared_lengths: np.ndarray    # (2n - 3,) their squared lengths (side units^2)
+    """Constant structure of the unit-side regular n-gon's constraints and chart (see ``_PolygonFit``)."""
+    differences: np.ndarray        # (2n - 3 + n - 1, n): X -> the 2n - 3 constrained pair differences
+    distance_count: int            # X_first - X_second, then the n - 1 edges X_k - X_0 (k = 1..n-1)
+    squared_lengths: np.ndarray    # (2n - 3,) the pairs' squared lengths (side units^2)
+    distance_pattern: np.ndarray   # (2n - 3, n, 1) d|X_first - X_second|^2 / dX_i = pattern[i] (X_first - X_second)
     double_area: float             # twice the polygon's area (side units^2)
     next: np.ndarray               # (n,) index of the following / preceding vertex
     previous: np.ndarray
-    jacobian_rows: np.ndarray      # row and vertex of each block of the constraint Jacobian, in the
-    jacobian_vertices: np.ndarray  # order of the parts stacked by ``constraints_jacobian``
+    coplanar_rows: np.ndarray      # (n - 3,) rows of the coplanarity constraints (k = 3..n-1)
+    coplanar_last: np.ndarray      # (n - 3,) their vertex k
+    chart_entries: np.ndarray      # (4n,) flat indices in dX/dq (3n, 3n) of the entries that depend on q:
+                                   # per vertex (x, u), (y, v), (x, w), (y, w)
+    depth_diagonal: np.ndarray     # (n,) index of each vertex's z (and w) in the flattened X (and q)
 
 
 @functools.lru_cache(maxsize=None)
@@ -443,23 +479,27 @@ def _polygon_geometry(n):
     first, second = (np.array(index) for index in zip(*pairs))
     # chord between vertices i and j of a unit-side regular polygon: sin(pi |i-j| / n) / sin(pi / n)
     lengths = np.sin(np.pi * np.abs(first - second) / n) / np.sin(np.pi / n)
-    distance_rows = np.arange(len(pairs))
-    coplanar_rows = np.arange(len(pairs), 3 * n - 6)
-    rows = [distance_rows, distance_rows] + [coplanar_rows] * 4
-    vertices = [first, second, np.ones(n - 3, int), np.full(n - 3, 2), np.arange(3, n), np.zeros(n - 3, int)]
+    differences = np.zeros((len(pairs) + n - 1, n))
+    differences[np.arange(len(pairs)), first] = 1.0
+    differences[np.arange(len(pairs)), second] = -1.0
+    differences[np.arange(len(pairs), len(pairs) + n - 1), np.arange(1, n)] = 1.0
+    differences[len(pairs):, 0] = -1.0
     index = np.arange(n)
-    return _PolygonGeometry(first, second, lengths ** 2, n / (2.0 * math.tan(math.pi / n)),
-                            np.roll(index, -1), np.roll(index, 1),
-                            np.concatenate(rows), np.concatenate(vertices))
+    vertex_offsets = 3 * index[:, None]
+    return _PolygonGeometry(differences, len(pairs), lengths ** 2, 2.0 * differences[:len(pairs), :, None],
+                            n / (2.0 * math.tan(math.pi / n)), np.roll(index, -1), np.roll(index, 1),
+                            np.arange(len(pairs), 3 * n - 6), np.arange(3, n),
+                            ((vertex_offsets + [0, 1, 0, 1]) * 3 * n + vertex_offsets + [0, 1, 2, 2]).ravel(),
+                            3 * index + 2)
 
 
 # ----------------------------------------------------------------------------------------- output
 def _invalidity(R, t, observation, model):
     """Why (R, t) is not an acceptable pose, or None if it is."""
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+    if not (np.isfinite(R).all() and np.isfinite(t).all()):
         return 'non-finite pose'
     points = _vertices_in_camera(R, t, model)
-    if np.any(points[:, 2] <= 0):
+    if points[:, 2].min() <= 0:
         return f'object behind the camera (z = {t[2]:.4g} m)'
     if R[:, 2] @ t >= 0:
         return 'top face seen from below'
@@ -486,16 +526,11 @@ def _covariance(points, normal, t, observation, squared_error, table_normal):
     ``points``: (n, 3) model vertices in the camera frame (m); ``normal``: the top face's normal.
     """
     n = len(points)
-    fx, fy = observation.K[0, 0], observation.K[1, 1]
-    x, y, z = points.T
-    J = np.zeros((n, 2, 6))
+    inverse_depth = 1.0 / points[:, 2:]
     # d(ideal px)/d(point) = [fx/z, 0, -fx x/z^2; 0, fy/z, -fy y/z^2]; d(point)/d(dt, dtheta) = [I, -[R p]x]
-    d_point = np.zeros((n, 2, 3))
-    d_point[:, 0, 0], d_point[:, 0, 2] = fx / z, -fx * x / z ** 2
-    d_point[:, 1, 1], d_point[:, 1, 2] = fy / z, -fy * y / z ** 2
-    J[:, :, :3] = d_point
-    J[:, :, 3:] = _cross((points - t)[:, None, :], d_point)        # rows of d_point @ -[R p]x
-    J = J.reshape(-1, 6)
+    d_point = _AXES[:2] - (points[:, :2] * inverse_depth)[:, :, None] * _AXES[2]     # rows e_k - (x_k / z) e_z
+    d_point *= (observation.focal_px * inverse_depth)[:, :, None]
+    J = np.concatenate([d_point, d_point @ _skew(t - points)], axis=2).reshape(-1, 6)   # d_point @ -[R p]x
     redundancy = 2 * n - 6
     sigma2 = max(squared_error / redundancy if redundancy > 0 else 0.0, PIXEL_SIGMA_FLOOR_PX ** 2)
     information = J.T @ J / sigma2
@@ -506,7 +541,7 @@ def _covariance(points, normal, t, observation, squared_error, table_normal):
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
         return None
-    return covariance if np.all(np.isfinite(covariance)) else None
+    return covariance if np.isfinite(covariance).all() else None
 
 
 def _canonical_rotation(R, model):
@@ -521,16 +556,17 @@ def _canonical_rotation(R, model):
 
 def _reference_frame(normal):
     """Rotation [x_ref, y_ref, normal]: x_ref = camera x projected onto the plane normal to ``normal``."""
-    axis = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    axis = _AXES[0] if abs(normal[0]) < 0.9 else _AXES[1]
     x_ref = axis - (axis @ normal) * normal
-    x_ref /= np.linalg.norm(x_ref)
-    return np.column_stack([x_ref, _skew(normal) @ x_ref, normal])
+    x_ref /= math.sqrt(x_ref @ x_ref)
+    return np.array([x_ref, _skew(normal) @ x_ref, normal]).T
 
 
 def _yaw_about_normal(R):
     """(angle (rad) about R's z axis from the reference x axis to R's x axis, the reference frame)."""
     reference = _reference_frame(R[:, 2])
-    return math.atan2(R[:, 0] @ reference[:, 1], R[:, 0] @ reference[:, 0]), reference
+    cosine, sine = (R[:, 0] @ reference[:, :2]).tolist()
+    return math.atan2(sine, cosine), reference
 
 
 # ----------------------------------------------------------------------------------------- helpers
@@ -541,18 +577,34 @@ def _vertices_in_camera(R, t, model):
 
 def _squared_error_px(points, observation):
     """Sum of squared reprojection errors (ideal px^2) of the (n, 3) model vertices in the camera frame (m)."""
-    error = (points[:, :2] / points[:, 2:] - observation.normalised) * np.diag(observation.K)[:2]
-    return float(np.sum(error ** 2))
+    error = ((points[:, :2] / points[:, 2:] - observation.normalised) * observation.focal_px).ravel()
+    return float(error @ error)
 
 
 def _angle_between(a, b):
-    return math.atan2(np.linalg.norm(_skew(a) @ b), a @ b)
+    """Angle (rad) between two 3-vectors."""
+    cross = _skew(a) @ b
+    return math.atan2(math.sqrt(cross @ cross), a @ b)
 
 
 def _from_opencv(rvec, tvec):
     """(R_camera_block, t) from an OpenCV pose (rvec, tvec) of the flipped model (see ``_FLIP``)."""
-    R_flipped = Rotation.from_rotvec(np.asarray(rvec, dtype=float).ravel()).as_matrix()
+    R_flipped, _ = cv2.Rodrigues(np.asarray(rvec, dtype=float).reshape(3, 1))
     return R_flipped * _FLIP, np.asarray(tvec, dtype=float).ravel()
+
+
+def _kabsch_rotation(points, model_points):
+    """Rotation R minimising sum |points_i - R model_points_i|^2 ((n, 3) arrays, both centred on the origin).
+
+    The SVD solution of ``Rotation.align_vectors`` without its per-call overhead (about 60 us, against
+    12 us): ``H = sum p_i m_i^T = U S V^T``, ``R = U diag(1, 1, det(U V^T)) V^T``.
+    """
+    u, _, vt = np.linalg.svd(points.T @ model_points)
+    rotation = u @ vt
+    if np.linalg.det(rotation) < 0:
+        u[:, 2] = -u[:, 2]
+        rotation = u @ vt
+    return rotation
 
 
 def _rotz(angle):
@@ -560,14 +612,13 @@ def _rotz(angle):
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _cross(a, b):
-    """Cross product of broadcastable (..., 3) arrays (np.cross is slow on tiny arrays)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+_AXES = np.eye(3)   # e_x, e_y, e_z
+# [e_c]x for c = x, y, z: [v]x = sum_c v_c [e_c]x
+_UNIT_SKEWS = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],
+                        [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]],
+                        [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
 
 
 def _skew(v):
-    """(3, 3) cross-product matrix [v]x of a 3-vector: [v]x @ w = v x w."""
-    x, y, z = v.tolist()
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    """(..., 3, 3) cross-product matrices [v]x of (..., 3) vectors: [v]x @ w = v x w, and rows a @ [v]x = a x v."""
+    return (v @ _UNIT_SKEWS.reshape(3, 9)).reshape(v.shape + (3,))

@@ -51,9 +51,10 @@ DISTRACTOR_MIN_DISTANCE = 0.08        # m between block centres (target and dist
 HAND_GREY_LEVEL = 120                 # rendered pixels darker than this are the hand (table ~210, floor ~255)
 MODES = pick.MODES
 START_POSES = ('down', 'angled')
+PLACE_TOLERANCE = 0.01          # m: a placed block must end this close to the requested position
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
               'app_success', 'failure_reason', 'verified', 'lifted', 'rise_mm', 'centring_mm', 'centring_x_mm',
-              'centring_y_mm', 'pre_close_offset_mm', 'time_s', 'steps', 'grasp_attempts', 'final_error_mm_est',
+              'centring_y_mm', 'pre_close_offset_mm', 'place_error_mm', 'time_s', 'steps', 'grasp_attempts', 'final_error_mm_est',
               'wall_s', 'returncode', 'timed_out', 'trial_dir')
 
 
@@ -439,8 +440,11 @@ def pre_close_sample(samples, open_above=95.0, drop=2.0):
     return None
 
 
-def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=300.0, seed=0, trial=0):
-    """One full pick on a fresh fake Baxter, scored with the ground truth; returns a CSV row dict.
+def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=300.0, seed=0, trial=0,
+              place_xy=None):
+    """One full pick (and place at ``place_xy``, base x, y in m, if given) on a fresh fake Baxter, scored
+    with the ground truth; returns a CSV row dict. A place run is verified when the app succeeded and the
+    block ends on the table within ``PLACE_TOLERANCE`` of ``place_xy`` (``place_error_mm``).
 
     Writes ``scene.yaml`` to ``workdir``, starts ``fake_baxter.py --scene scene.yaml --real-time-factor 0
     --seed seed`` on ``master`` (a ``launcher.RosMaster``), runs ``scripts/pick_square.py`` (its log
@@ -468,7 +472,8 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
         fake.start()
         run = run_script(master, 'pick_square.py',
                          ['--mode', mode, '--start-pose', start_pose, '--side-length', target['side'],
-                          '--step-fraction', step_fraction, '--result-json', result_path, '--output-dir', workdir],
+                          '--step-fraction', step_fraction, '--result-json', result_path, '--output-dir', workdir]
+                         + ([] if place_xy is None else ['--place', '%g,%g' % tuple(place_xy)]),
                          timeout=timeout, log_path=os.path.join(workdir, 'pick.log'))
         samples = monitor.wait_for_samples(monitor.count() + 1)
     except RuntimeError as problem:      # the fake did not start, or no ground truth came
@@ -502,6 +507,12 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
            'trial_dir': workdir}
     row.update(scores)
     row['verified'] = bool(row['app_success']) and scores['lifted']
+    row['place_error_mm'] = None
+    if place_xy is not None and samples:
+        T_end = samples[-1].T_base_block
+        on_table = abs(T_end[2, 3] - (scene['table']['top_z'] + target['height'])) < 0.003
+        row['place_error_mm'] = 1000.0 * float(np.hypot(T_end[0, 3] - place_xy[0], T_end[1, 3] - place_xy[1]))
+        row['verified'] = bool(row['app_success']) and on_table and row['place_error_mm'] <= 1000 * PLACE_TOLERANCE
     return row
 
 
@@ -548,6 +559,8 @@ def parse_args(argv):
     parser.add_argument('--step-fraction', type=float, default=0.35, help='PBVS step fraction (default %(default)s)')
     parser.add_argument('--distractors', type=int, default=0, help='other blocks per scene (default %(default)s)')
     parser.add_argument('--timeout', type=float, default=300.0, help='wall seconds per trial (default %(default)s)')
+    parser.add_argument('--place', metavar='X,Y', type=lambda text: [float(v) for v in text.split(',')],
+                        help='also place each block at this table position (base, m); scored by where it ends')
     parser.add_argument('--out', default='trials_out', help='output directory (default %(default)s)')
     parser.add_argument('--from-csv', nargs='+', metavar='CSV', help='run nothing: merge these trials.csv files '
                         'into --out and report them (tables, summary.json, plots)')
@@ -586,7 +599,7 @@ def main(argv=None):
         for k, (start_pose, trial, scene_seed, scene, mode) in enumerate(plan):
             workdir = os.path.join(out, f'{start_pose}_{trial:03d}_{mode}')
             row = run_trial(master, scene, mode, start_pose, args.step_fraction, workdir, timeout=args.timeout,
-                            seed=scene_seed, trial=trial)
+                            seed=scene_seed, trial=trial, place_xy=args.place)
             rows.append(row)
             write_csv(rows, os.path.join(out, 'trials.csv'))
             centring = 'n/a' if row['centring_mm'] is None else '%.1f mm' % row['centring_mm']
@@ -607,3 +620,8 @@ def report(rows, out, command, args=None):
                    'per_mode_and_start_pose': per_start_pose}, f, indent=1)
     plot_results(rows, out)
     print(f'\n{command}\n\n{format_table(per_mode)}\n\n{format_table(per_start_pose)}')
+    placed = [float(r['place_error_mm']) for r in rows if r.get('place_error_mm') not in (None, '')]
+    if placed:
+        within = sum(e <= 1000 * PLACE_TOLERANCE for e in placed)
+        print(f'\nplace error (ground truth): median {np.median(placed):.1f} mm, p90 '
+              f'{np.percentile(placed, 90):.1f} mm, within {1000 * PLACE_TOLERANCE:.0f} mm: {within}/{len(rows)}')

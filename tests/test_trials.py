@@ -1,4 +1,4 @@
-"""Batch-trials runner (baxter_pnp.trials): random scenes, ground-truth scoring, summary; one real trial."""
+"""Batch-trials runner (baxter_pnp.sim.trials): random scenes, ground-truth scoring, summary; one real trial."""
 import math
 
 import cv2
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import trials
+from baxter_pnp.sim import trials
 from baxter_pnp.models import model_for
 from baxter_pnp.sim.launcher import RosMaster, free_port, run_script
 from baxter_pnp.sim.scene import Scene, Table

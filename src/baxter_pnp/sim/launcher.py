@@ -1,7 +1,7 @@
 """Process launcher: a private rosmaster, the fake Baxter and entry-point scripts as subprocesses.
 
 Used by the ROS integration tests (``tests/ros_graph.py``, ``tests/conftest.py``) and the batch-trials
-runner (``baxter_pnp.trials``). Every run gets its own ``rosmaster --core`` on a free loopback port, so
+runner (``baxter_pnp.sim.trials``). Every run gets its own ``rosmaster --core`` on a free loopback port, so
 it never touches a developer's roscore and runs can go in parallel. Only the processes started here
 are ever stopped: each runs in its own process group, which is signalled as a whole.
 

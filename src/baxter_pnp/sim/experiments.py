@@ -342,7 +342,8 @@ def reach_time(history, position_tolerance_mm, yaw_tolerance_deg):
 
 def reach_trial(row):
     """A ``ReachTrial`` from a ``trials.run_trial`` row (reads its result.json)."""
-    from baxter_pnp import pick, trials
+    from baxter_pnp import pick
+    from baxter_pnp.sim import trials
     path = os.path.join(row['trial_dir'], 'result.json')
     history = []
     if os.path.exists(path):
@@ -363,7 +364,7 @@ def reach_seed(seed, start_pose, trial):
 
 def run_reach_cells(master, out_dir, trial_count, seed, start_poses, fractions, timeout):
     """Every (start pose, fraction, trial) run on ``master`` (this process's rospy node must be on it)."""
-    from baxter_pnp import trials
+    from baxter_pnp.sim import trials
     results = []
     for start_pose in start_poses:
         for trial in range(trial_count):

@@ -194,6 +194,9 @@ class PickApplication:
         recalibrate the gripper and reopen the camera."""
         c = self.config
         deadline = time.monotonic() + c.robot_wait_timeout
+        # Let what the old robot sent age past the freshness limit: a state that is fresh after this comes
+        # from the robot that is back (a restarted gripper is uncalibrated, whatever the old one said).
+        time.sleep(c.stream_max_age)
         while True:
             try:
                 self.enabler.require_fresh(c.stream_max_age)

@@ -131,3 +131,29 @@ def test_ik_of_unreachable_pose_returns_none(left, position):
     # 1.41 m bound but beyond the straight arm's 1.21 m (found unreachable by search).
     T = from_xyz_quat(position, (0.0, 1.0, 0.0, 0.0))
     assert left.ik(T) is None
+
+
+def test_hand_solids_project_where_the_fake_renders_the_open_fingers():
+    """The fingers hide the top of the hand camera's image: the URDF's gripper solids, ray-cast through the
+    published camera model, must cover the same pixels as the fake's rendering of the empty table."""
+    from baxter_pnp import servo
+    from baxter_pnp.sim import trials
+    from baxter_pnp.transforms import invert
+    T_base_camera, T_base_gripper, camera, _ = trials.start_view('down')
+    kinematics = ArmKinematics('left')
+    try:
+        solids = kinematics.hand_solids()
+    finally:
+        kinematics.close()
+    T_camera_gripper = invert(T_base_camera) @ T_base_gripper
+    geometric = servo.hand_clearance_px(camera, [solid.moved(T_camera_gripper) for solid in solids]) == 0
+    rendered = trials.hand_clearance_px('down') == 0
+    assert 0.05 < rendered.mean() < 0.2                          # the fingers are in view at all
+    assert np.sum(geometric != rendered) < 0.02 * rendered.sum()  # and in the same place (edges differ)
+    closed = ArmKinematics('left')
+    try:
+        closed_solids = closed.hand_solids(opening=0.0)
+    finally:
+        closed.close()
+    finger_gaps = [abs(s.T[1, 3]) for s in solids if s.kind == 'box']
+    assert max(finger_gaps) > max(abs(s.T[1, 3]) for s in closed_solids if s.kind == 'box') + 0.015

@@ -58,15 +58,59 @@ def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():
     T_base_block = block_at(0.7, 0.25, 0.0)
     T_goal = pick.hover_pose(T_base_block, config, gripper_down_at(0.7, 0.25, 0.14))
     far = gripper_down_at(0.7, 0.25, 0.14)
-    step = pick.pbvs_target(far, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+    step, toward = pick.pbvs_target(far, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+    assert toward is T_goal
     before, _ = pick.pose_error(far, T_goal)
     after, _ = pick.pose_error(step, T_goal)
     assert after == pytest.approx((1 - config.step_fraction) * before, rel=1e-6)
     near = T_goal.copy()
     near[0, 3] += 0.005
-    assert pick.pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA),
+    assert pick.pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)[0],
                            T_goal)[0] < 1e-9
     assert pick.converged(T_goal, T_goal, config) and not pick.converged(near, T_goal, config)
+
+
+@pytest.fixture(scope='module')
+def hand_clearance():
+    from baxter_pnp.kinematics import ArmKinematics
+    kinematics = ArmKinematics('left')
+    try:
+        solids = [solid.moved(invert(T_GRIPPER_CAMERA)) for solid in kinematics.hand_solids()]
+    finally:
+        kinematics.close()
+    return servo.hand_clearance_px(CAMERA, solids)
+
+
+def test_pbvs_goes_via_the_view_pose_instead_of_passing_the_block_behind_a_finger(hand_clearance):
+    """A far block off to the side (a scene the thesis's straight path lost): the straight PBVS path takes
+    it to the top of the image, behind a finger; with the hand's clearance map every step keeps it clear
+    and the servo still reaches the hover pose."""
+    config = pick.PickConfig(side_length=0.046)
+    T_base_block = block_at(0.712, -0.015, -2.06)
+    start = gripper_down_at(0.65, 0.25, 0.14)
+    T_hover = pick.hover_pose(T_base_block, config, start)
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+
+    def clear_of_fingers(T_base_gripper):
+        return servo.points_in_view(T_base_gripper @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
+
+    assert clear_of_fingers(start)
+    T, hidden_steps = start, 0
+    for _ in range(10):
+        T, toward = pick.pbvs_target(T, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+        hidden_steps += not clear_of_fingers(T)
+    assert hidden_steps > 0             # without the map: behind a finger on the way
+
+    T, via_view = start, 0
+    for _ in range(config.max_steps):
+        if pick.converged(T, T_hover, config):
+            break
+        T, toward = pick.pbvs_target(T, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, hand_clearance)
+        via_view += toward is not T_hover
+        assert servo.points_in_view(T @ T_GRIPPER_CAMERA, vertices_base, CAMERA, config.view_margin_px - 1e-6,
+                                    hand_clearance)
+    assert pick.converged(T, T_hover, config)
+    assert via_view > 0
 
 
 def test_place_pose_puts_the_block_bottom_at_the_requested_height():

@@ -356,3 +356,38 @@ def test_joint_velocities_freeze_a_joint_at_its_limit_and_keep_the_twist():
     limited = servo.joint_velocities(J, twist, damping=1e-6, q=q, lower=lower, upper=upper)
     assert limited[joint] == 0.0
     np.testing.assert_allclose(J @ limited, twist, atol=1e-6)       # the other six joints still give the twist
+
+
+def test_joint_velocities_freeze_a_joint_that_would_pass_its_limit_within_the_command_horizon():
+    """A joint 0.16 rad from its limit, heading there at about 1 rad/s (the trials' elbow failure): one
+    command lasts 0.2 s, so it must be frozen now, not when it is already within the margin."""
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(6, 7))
+    twist = rng.normal(size=6)
+    free = servo.joint_velocities(J, twist, damping=1e-6)
+    joint = int(np.argmax(np.abs(free)))
+    twist *= 1.0 / abs(free[joint])                  # that joint at 1 rad/s
+    lower, upper = np.full(7, -2.0), np.full(7, 2.0)
+    q = np.zeros(7)
+    q[joint] = (lower if free[joint] < 0 else upper)[joint] - np.sign(free[joint]) * 0.16
+    limited = servo.joint_velocities(J, twist, damping=1e-6, q=q, lower=lower, upper=upper, horizon=0.2)
+    assert limited[joint] == 0.0
+    ahead = q + 0.2 * limited
+    assert np.all(ahead > lower) and np.all(ahead < upper)
+    assert servo.joint_velocities(J, twist, damping=1e-6, q=q, lower=lower, upper=upper, horizon=0.05)[joint] != 0.0
+
+
+def test_ray_hits_boxes_and_cylinders():
+    from baxter_pnp.kinematics import Solid
+    box = Solid("box", tf.make_transform(Rotation.identity(), (0.0, 0.0, 1.0)), np.array([0.1, 0.2, 0.05]))
+    cylinder = Solid("cylinder", tf.make_transform(Rotation.from_euler('x', np.pi / 2), (0.0, 0.0, 1.0)),
+                     np.array([0.1, 0.1, 0.3]))     # axis along camera y, radius 0.1, 0.6 long
+    rays = np.array([[0.0, 0.0, 1.0], [0.09, 0.0, 1.0], [0.11, 0.0, 1.0], [0.0, 0.19, 1.0], [0.0, 0.22, 1.0],
+                     [0.0, 0.0, -1.0], [0.08, 0.08, 1.0]])
+    np.testing.assert_array_equal(servo.ray_hits(np.zeros(3), rays, box),
+                                  [True, True, False, True, False, False, True])
+    # its square bounding box would take the corner ray (0.105, 0, 1): the cylinder does not
+    rays = np.array([[0.0, 0.0, 1.0], [0.095, 0.28, 1.0], [0.0, 0.32, 1.0], [0.0, 0.36, 1.0], [0.105, 0.0, 1.0]])
+    np.testing.assert_array_equal(servo.ray_hits(np.zeros(3), rays, cylinder), [True, True, True, False, False])
+    bounding_box = Solid('box', cylinder.T, cylinder.half_extents)
+    assert servo.ray_hits(np.zeros(3), rays[4:], bounding_box)[0]

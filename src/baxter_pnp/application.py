@@ -28,7 +28,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
-from baxter_pnp import perception, pick, robot, servo, vision
+from baxter_pnp import perception, pick, robot, servo, transforms, vision
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.ros_image import bgr_to_msg
@@ -39,6 +39,10 @@ from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
 DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
 SETTLE_TOLERANCE = 0.003        # rad: a position move counts as arrived (and the arm as still) within this
 MIN_SETTLE_TOLERANCE = 0.0005   # rad: ... or within a third of a smaller move, but never tighter than this
+
+
+# Failures after which a multi-cycle run stops: the robot is gone, stopped or broken, not just this pick.
+FATAL_REASONS = ('robot_stopped', 'robot_disabled', 'stream_lost', 'service_unavailable', 'robot_error', 'gripper')
 
 
 class PickFailure(RuntimeError):
@@ -56,6 +60,12 @@ class Look(NamedTuple):
     T_base_camera: np.ndarray
     target: Optional[perception.BlockObservation]
     T_base_block: Optional[np.ndarray]
+
+
+class Approach(NamedTuple):
+    """How the arm approaches the block, chosen once per approach (``PickApplication.plan_approach``)."""
+    T_reference: np.ndarray     # 4x4 whose rotation picks the grasp orientation among the block's symmetric ones
+    view_depth: float           # camera-to-block distance of the view pose (m)
 
 
 class RobotRestarted(robot.RobotError):
@@ -89,14 +99,18 @@ class RunClock:
 class PickApplication:
     """One pick (and place) run. Construct after ``rospy.init_node``; ``run()`` returns a PickResult."""
 
-    def __init__(self, config, vision_config, output_dir=None):
+    def __init__(self, config, vision_config, output_dir=None, result_json=None):
         self.config = config
         self.vision_config = vision_config
         self.output_dir = output_dir
+        self.result_json = result_json
         self.model = config.model
         self.result = pick.PickResult(success=False, mode=config.mode)
         self.last_block = None
         self.last_annotated = None
+        self._hand_clearance = {}       # camera model key -> servo.hand_clearance_px map
+        self.approach = None            # Approach of the current approach (plan_approach)
+        self._views_saved = 0
         self._debug_pub = rospy.Publisher('/baxter_pnp/debug_image', Image, queue_size=1)
         self._target_pub = rospy.Publisher('/baxter_pnp/target_pose', PoseStamped, queue_size=1, latch=True)
         self._result_pub = rospy.Publisher('/baxter_pnp/result', String, queue_size=1, latch=True)
@@ -124,39 +138,82 @@ class PickApplication:
                       % (self.hand_eye.source, np.round(self.hand_eye.T_gripper_camera[:3, 3], 4).tolist()))
         self.limb.set_speed_ratio(c.speed_ratio)
 
+    def hand_clearance(self, camera):
+        """The hand's clearance map in ``camera``'s image (``servo.hand_clearance_px``: each pixel's distance to
+        the open fingers, projected from the URDF's gripper solids and the hand-eye transform), computed once
+        per camera model."""
+        key = (camera.width, camera.height, camera.K.tobytes(), camera.D.tobytes())
+        if key not in self._hand_clearance:
+            T_camera_gripper = invert(self.hand_eye.T_gripper_camera)
+            solids = [solid.moved(T_camera_gripper) for solid in self.kinematics.hand_solids()]
+            self._hand_clearance[key] = servo.hand_clearance_px(camera, solids)
+            rospy.loginfo('pick: the open fingers hide %.1f %% of the %dx%d image'
+                          % (100.0 * np.mean(self._hand_clearance[key] == 0), camera.width, camera.height))
+        return self._hand_clearance[key]
+
     # ================================================================================ the run
     def run(self):
-        """Connect, pick (and place); never raises for robot faults: they end in ``result.failure_reason``."""
+        """Connect, then ``config.cycles`` pick (and place) cycles. Never raises for robot faults: each cycle
+        ends in its result's ``failure_reason``; a failed cycle is followed by the next unless the robot
+        itself is gone (``FATAL_REASONS``). Returns the cycles' PickResults (the last one is ``self.result``)."""
         c = self.config
-        self.clock = None
-        try:
-            self.connect()
-            if not self.gripper.open(block=True, timeout=3.0):
-                raise PickFailure('gripper', 'the gripper did not open')
-            self.move_to_joints(load_start_poses()[c.start_pose] if c.side == 'left'
-                                else self._mirror(load_start_poses()[c.start_pose]), 'start pose %s' % c.start_pose)
-            self.clock = RunClock()
-            self.pick_with_recovery()
-            if c.place_xy is not None:
-                self.place()
-            self.result.success = True
-        except PickFailure as failure:
-            self.fail(failure.reason, str(failure))
-        except UnsafeCommand as error:
-            self.fail('unsafe_command', str(error))
-        except robot.IKFailure as error:
-            self.fail('ik_failure', str(error))
-        except (robot.StreamLost, RobotRestarted) as error:
-            self.fail('stream_lost', str(error))
-        except robot.ServiceUnavailable as error:
-            self.fail('service_unavailable', str(error))
-        except robot.RobotError as error:
-            self.fail('robot_error', str(error))
-        finally:
-            if self.clock is not None:
-                self.result.total_time_s = self.clock.elapsed()
-            self.finish()
-        return self.result
+        self.results = []
+        connected = False
+        for cycle in range(1, c.cycles + 1):
+            self.result = pick.PickResult(success=False, mode=c.mode)
+            self.last_block = None
+            self.approach = None
+            self.clock = None
+            try:
+                if not connected:
+                    self.connect()
+                    connected = True
+                if c.cycles > 1:
+                    rospy.loginfo('pick: cycle %d of %d' % (cycle, c.cycles))
+                if not self.gripper.open(block=True, timeout=3.0):
+                    raise PickFailure('gripper', 'the gripper did not open')
+                self.move_to_joints(load_start_poses()[c.start_pose] if c.side == 'left'
+                                    else self._mirror(load_start_poses()[c.start_pose]),
+                                    'start pose %s' % c.start_pose)
+                self.clock = RunClock()
+                if cycle > 1:
+                    self.wait_for_next_block()
+                self.pick_with_recovery()
+                if c.place_xy is not None:
+                    self.place()
+                self.result.success = True
+            except PickFailure as failure:
+                self.fail(failure.reason, str(failure))
+            except UnsafeCommand as error:
+                self.fail('unsafe_command', str(error))
+            except robot.IKFailure as error:
+                self.fail('ik_failure', str(error))
+            except (robot.StreamLost, RobotRestarted) as error:
+                self.fail('stream_lost', str(error))
+            except robot.ServiceUnavailable as error:
+                self.fail('service_unavailable', str(error))
+            except robot.RobotError as error:
+                self.fail('robot_error', str(error))
+            finally:
+                if self.clock is not None:
+                    self.result.total_time_s = self.clock.elapsed()
+                self.results.append(self.result)
+                self.finish()
+            if not connected or self.result.failure_reason in FATAL_REASONS:
+                break
+        return self.results
+
+    def wait_for_next_block(self):
+        """Between cycles: look from the start pose until a block to pick (not one already placed) is in
+        view, for at most ``next_block_timeout`` s of robot time."""
+        c = self.config
+        rospy.loginfo('pick: waiting up to %.0f s for a %s %s to pick' % (c.next_block_timeout, c.colour, c.shape))
+        deadline = rospy.get_time() + c.next_block_timeout
+        while rospy.get_time() < deadline:
+            if self.look(after_stamp=rospy.get_time()).target is not None:
+                return
+        raise PickFailure('no_block', 'no %s %s to pick appeared within %.0f s'
+                          % (c.colour, c.shape, c.next_block_timeout))
 
     def pick_with_recovery(self):
         """``pick``, resumed when the robot went away and came back (restarted, or a network outage: its
@@ -246,9 +303,10 @@ class PickApplication:
         raise PickFailure('grasp_missed', 'no grip after %d attempts' % c.max_grasp_attempts)
 
     # ================================================================================ perception
-    def look(self, after_stamp=None, on_table=True):
+    def look(self, after_stamp=None, on_table=True, placed_too=False):
         """Wait for a frame newer than ``after_stamp`` (ROS time), detect and estimate the block (with
-        ``on_table``, only estimates that put it on the table are believed)."""
+        ``on_table``, only estimates that put it on the table are believed; unless ``placed_too``, blocks
+        within two sides of ``place_xy`` count as already placed and are not targets)."""
         c = self.config
         self.check_robot()
         try:
@@ -263,23 +321,27 @@ class PickApplication:
         observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, c.side_length,
                                                  c.block_height, shape=c.shape, colour=c.colour,
                                                  method=c.estimator, table_plane=plane)
-        target = self._choose(observations, frame, T_base_camera, on_table)
+        target = self._choose(observations, frame, T_base_camera, on_table, placed_too)
         T_base_block = None if target is None else T_base_camera @ target.pose.T_camera_object
         self.publish_view(frame, observations, T_base_block)
         return Look(frame, T_base_gripper, T_base_camera, target, T_base_block)
 
-    def _choose(self, observations, frame, T_base_camera, on_table=True):
+    def _choose(self, observations, frame, T_base_camera, on_table=True, placed_too=False):
         """The target among the believable estimates (reprojection residual below ``max_residual_px`` and,
-        ``on_table``, top face within ``max_height_error`` of where the table puts it): the one nearest
-        the last estimate (tracking), else the largest / most central (vision.select_target)."""
+        ``on_table``, top face within ``max_height_error`` of where the table puts it; unless ``placed_too``,
+        not already at ``place_xy``): the one nearest the last estimate (tracking), else the largest / most
+        central (vision.select_target)."""
         c = self.config
         expected_z = c.table_top_z + c.block_height
 
         def believable(o):
             if o.pose is None or o.pose.residual_px > c.max_residual_px:
                 return False
-            height = (T_base_camera @ o.pose.T_camera_object)[2, 3]
-            return not on_table or abs(height - expected_z) <= c.max_height_error
+            position = (T_base_camera @ o.pose.T_camera_object)[:3, 3]
+            if (not placed_too and c.place_xy is not None
+                    and np.linalg.norm(position[:2] - np.asarray(c.place_xy)) < 2 * c.side_length):
+                return False
+            return not on_table or abs(position[2] - expected_z) <= c.max_height_error
         posed = [o for o in observations if believable(o)]
         if not posed:
             return None
@@ -293,8 +355,16 @@ class PickApplication:
         return next(o for o in posed if o.detection is chosen)
 
     def publish_view(self, frame, observations, T_base_block):
+        """Annotated view on ``/baxter_pnp/debug_image`` (and, with ``save_views``, as a numbered PNG in the
+        output directory); the block's pose on ``/baxter_pnp/target_pose`` and as tf frame ``block``."""
         annotated = perception.annotate(frame.image_bgr, observations, frame.camera)
         self.last_annotated = annotated
+        if self.config.save_views and self.output_dir:
+            import cv2
+            self._views_saved += 1
+            views_dir = os.path.join(self.output_dir, 'views')
+            os.makedirs(views_dir, exist_ok=True)
+            cv2.imwrite(os.path.join(views_dir, 'view_%04d_t%.2f.png' % (self._views_saved, frame.stamp)), annotated)
         stamp = rospy.Time.from_sec(frame.stamp)
         message = bgr_to_msg(annotated, 'bgr8')
         message.header.stamp = stamp
@@ -315,8 +385,8 @@ class PickApplication:
         self._tf.sendTransform(transform)
 
     def look_for_block(self, after_stamp=None):
-        """A look that finds the block whole: re-centres on a block cut by the image border and backs
-        off upward when it is lost (up to ``max_lost`` times in a row)."""
+        """A look that finds the block whole: re-centres on a block cut by the image border and, when it is
+        lost, moves to a wider view (:meth:`search_pose`; up to ``max_lost`` times in a row)."""
         c = self.config
         for lost in range(c.max_lost + 1):
             self.check_deadline()
@@ -330,13 +400,31 @@ class PickApplication:
             else:
                 if lost == c.max_lost:
                     break
-                rospy.logwarn('pick: block not in view (re-acquisition %d of %d): backing off %.0f mm upward'
-                              % (lost + 1, c.max_lost, 1000 * c.backoff_height))
-                T_next = pick.raised(look.T_base_gripper, c.backoff_height)
+                T_next = self.search_pose(look, lost)
             self.move_to_pose(T_next, 're-acquire')
             after_stamp = rospy.get_time()
         raise PickFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves'
                           % (c.colour, c.shape, c.max_lost))
+
+    def search_pose(self, look, lost):
+        """Where to look from after ``lost`` + 1 looks in a row without the block: above where it was last
+        seen (the view pose of the velocity laws, ``view_depth`` from it, clear of the fingers), each further
+        try ``backoff_height`` higher; never seen yet, or that view out of reach: ``backoff_height`` above
+        the current pose."""
+        c = self.config
+        if self.last_block is not None:
+            T_reference = look.T_base_gripper if self.approach is None else self.approach.T_reference
+            T_hover = pick.hover_pose(self.last_block, c, T_reference)
+            T_view = pick.raised(pick.view_pose(self.last_block, T_hover, self.hand_eye.T_gripper_camera,
+                                                look.frame.camera, c), lost * c.backoff_height)
+            if self.kinematics.ik(T_view, seed=self.limb.joint_positions()) is not None:
+                rospy.logwarn('pick: block not in view (re-acquisition %d of %d): looking from above where it was '
+                              'last seen, at %s mm' % (lost + 1, c.max_lost,
+                                                       np.round(1000 * self.last_block[:3, 3], 1).tolist()))
+                return T_view
+        rospy.logwarn('pick: block not in view (re-acquisition %d of %d): backing off %.0f mm upward'
+                      % (lost + 1, c.max_lost, 1000 * c.backoff_height))
+        return pick.raised(look.T_base_gripper, c.backoff_height)
 
     def recentred(self, look):
         """Gripper pose translated so the camera looks at the (partly visible) block's estimated centre."""
@@ -379,14 +467,18 @@ class PickApplication:
         """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted."""
         c = self.config
         look = self.look_for_block()
+        approach = self.approach = self.plan_approach(look)
         for step in range(c.max_steps + 1):
-            T_goal = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
+            T_goal = pick.hover_pose(look.T_base_block, c, approach.T_reference)
             self.record(step, look, T_goal, self.image_error_px(look, T_goal))
             if pick.converged(look.T_base_gripper, T_goal, c):
                 return look.T_base_block
-            T_next = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
-                                      self.hand_eye.T_gripper_camera)
-            self.move_to_pose(T_next, 'servo step %d' % (step + 1))
+            T_next, T_toward = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
+                                                self.hand_eye.T_gripper_camera, self.hand_clearance(look.frame.camera),
+                                                approach.view_depth)
+            self.move_to_pose(T_next, 'servo step %d%s' % (step + 1, '' if T_toward is T_goal else
+                                                            ' (via the view pose: a straight path would pass '
+                                                            'the block behind a finger)'))
             look = self.look_for_block(after_stamp=rospy.get_time())
         raise PickFailure('not_converged', 'still %.1f mm from the hover pose after %d steps'
                           % (self.result.final_error_mm_est, c.max_steps))
@@ -398,12 +490,13 @@ class PickApplication:
         camera_frame = '%s_hand_camera' % c.side
         velocity_limits = c.speed_ratio * self.kinematics.velocity_limits * 2.0
         look = self.look_for_block()
+        approach = self.approach = self.plan_approach(look)
         at_view = False         # first goal: the view pose (block low in the image); then the hover pose
         for iteration in range(10 * c.max_steps + 1):
             camera = look.frame.camera
-            T_hover = pick.hover_pose(look.T_base_block, c, look.T_base_gripper)
+            T_hover = pick.hover_pose(look.T_base_block, c, approach.T_reference)
             T_goal = T_hover if at_view else pick.view_pose(look.T_base_block, T_hover, self.hand_eye.T_gripper_camera,
-                                                            camera, c)
+                                                            camera, c, approach.view_depth)
             T_camera_goal_block = pick.camera_goal(T_goal, look.T_base_block, self.hand_eye.T_gripper_camera)
             vertices_xy = camera.undistort_points(look.target.detection.vertices_px)
             twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
@@ -422,7 +515,7 @@ class PickApplication:
             q = self.limb.joint_positions()
             qdot = servo.joint_velocities(self.kinematics.jacobian(q, camera_frame), twist_base,
                                           qdot_limits=velocity_limits, q=q, lower=self.kinematics.lower,
-                                          upper=self.kinematics.upper)
+                                          upper=self.kinematics.upper, horizon=robot.COMMAND_TIMEOUT)
             self.limb.set_joint_velocities(qdot)
             try:
                 look = self.look_for_velocity_loop(look.frame.stamp)
@@ -432,6 +525,40 @@ class PickApplication:
         self.limb.exit_control_mode()
         raise PickFailure('not_converged', 'feature error still %.1f px after %d iterations'
                           % (error * camera.fx, 10 * c.max_steps))
+
+    def plan_approach(self, look, shrink=0.85, tries=5):
+        """Choose, once per approach, the grasp orientation and the view pose's depth (``self.approach``).
+
+        The block's symmetric grasp orientations are tried from the smallest rotation of the gripper up,
+        with the view pose's camera-to-block distance ``view_depth`` or shorter (by ``shrink``, ``tries``
+        times): the first whose hover pose and view pose the arm can reach (URDF IK from the current
+        angles) wins. At the view pose the camera looks down at the block low in its image, so the gripper
+        is ~0.1 m beyond the block along its own x: for a far block a turned gripper brings that back into
+        reach. If nothing is reachable, the smallest rotation and ``view_depth``.
+        """
+        c = self.config
+        q = self.limb.joint_positions()
+        orientations = servo.grasp_orientations(look.T_base_block, self.model.symmetry_angle, look.T_base_gripper)
+        for rank, R in enumerate(orientations):
+            T_reference = transforms.make_transform(R)
+            T_hover = pick.hover_pose(look.T_base_block, c, T_reference)
+            if self.kinematics.ik(T_hover, seed=q) is None:
+                continue
+            depth = c.view_depth
+            for _ in range(tries):
+                T_view = pick.view_pose(look.T_base_block, T_hover, self.hand_eye.T_gripper_camera,
+                                        look.frame.camera, c, depth)
+                if self.kinematics.ik(T_view, seed=q) is not None:
+                    rospy.loginfo('pick [%s]: approach planned: grasp orientation %d of %d (%.0f deg from the '
+                                  'current one), view from %.0f mm' % (c.mode, rank + 1, len(orientations),
+                                                                      np.degrees(pick.pose_error(look.T_base_gripper,
+                                                                                                 T_hover)[1]),
+                                                                      1000 * depth))
+                    return Approach(T_reference, depth)
+                depth *= shrink
+        rospy.logwarn('pick [%s]: no grasp orientation with a reachable hover and view pose: trying the nearest'
+                      % c.mode)
+        return Approach(transforms.make_transform(orientations[0]), c.view_depth)
 
     def look_for_velocity_loop(self, after_stamp):
         """Next look of the velocity loop; on a lost or cut block the arm stops and re-acquires first."""
@@ -499,7 +626,7 @@ class PickApplication:
             raise PickFailure('gripper', 'the gripper did not open to release the block')
         self.move_to_pose(pick.raised(self.limb.endpoint_pose(), c.lift_height), 'retreat')
         self.result.placed = True
-        look = self.look(after_stamp=rospy.get_time())
+        look = self.look(after_stamp=rospy.get_time(), placed_too=True)
         if look.target is None:
             rospy.logwarn('pick: the look after placing does not find the block')
             return
@@ -621,8 +748,24 @@ class PickApplication:
                       '' if r.success else ', reason: %s' % r.failure_reason))
         (rospy.loginfo if r.success else rospy.logerr)(summary)
         self._result_pub.publish(String(json.dumps(r.to_json())))
+        if self.result_json:
+            with open(self.result_json, 'w') as f:
+                json.dump(results_json(self.results, self.config), f, indent=1)
         if self.output_dir:
-            write_outputs(self.output_dir, r, self.last_annotated)
+            cycle_dir = self.output_dir if self.config.cycles == 1 else os.path.join(
+                self.output_dir, 'cycle_%03d' % len(self.results))
+            write_outputs(cycle_dir, r, self.last_annotated)
+
+
+def results_json(results, config):
+    """The ``--result-json`` content: one run's result dict; with ``cycles`` > 1 ``{"cycles": [result dicts
+    of the finished cycles], "successes", "success" (all cycles so far succeeded), "mode", "cycles_planned"}``."""
+    if config.cycles == 1:
+        return results[-1].to_json()
+    successes = sum(r.success for r in results)
+    return {'cycles': [r.to_json() for r in results], 'successes': successes,
+            'success': successes == len(results) == config.cycles, 'mode': config.mode,
+            'cycles_planned': config.cycles}
 
 
 def write_outputs(output_dir, result, annotated):
@@ -674,8 +817,12 @@ def parse_args(argv):
                         help="camera calibration to use instead of the robot's camera_info")
     parser.add_argument('--speed-ratio', type=float, help='arm speed ratio (0, 1]')
     parser.add_argument('--place', metavar='X,Y', help='place the block at this table position (base, m)')
+    parser.add_argument('--cycles', type=int, help='pick (and place) this many blocks, one after the other; '
+                        'after the first, wait for each next block (blocks at the place position are done)')
     parser.add_argument('--result-json', metavar='FILE', help='write the result JSON here')
     parser.add_argument('--output-dir', metavar='DIR', help='write result.json, final_view.png and errors.png here')
+    parser.add_argument('--save-views', action='store_true', default=None,
+                        help='save every annotated camera view as a PNG in OUTPUT_DIR/views')
     parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
     return parser.parse_args(argv)
 
@@ -690,7 +837,7 @@ def build_config(args):
         if rospy.has_param('~' + name):
             values[name] = rospy.get_param('~' + name)
     for name in ('mode', 'side', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'table_top_z',
-                 'estimator', 'speed_ratio', 'camera_calibration'):
+                 'estimator', 'speed_ratio', 'camera_calibration', 'cycles', 'save_views'):
         if getattr(args, name) is not None:
             values[name] = getattr(args, name)
     if args.place:
@@ -714,11 +861,11 @@ def main(argv=None):
         rospy.logerr('pick_square: bad configuration: %s' % error)
         return 2
     rospy.loginfo('pick_square: %s' % json.dumps(config.as_dict()))
-    application = PickApplication(config, vision_config, args.output_dir)
+    application = PickApplication(config, vision_config, args.output_dir, args.result_json)
     started = time.monotonic()
-    result = application.run()
+    results = application.run()
+    successes = sum(r.success for r in results)
     rospy.loginfo('pick_square: wall time %.1f s' % (time.monotonic() - started))
-    if args.result_json:
-        with open(args.result_json, 'w') as f:
-            json.dump(result.to_json(), f, indent=1)
-    return 0 if result.success else 1
+    if config.cycles > 1:
+        rospy.loginfo('pick_square: %d of %d cycles succeeded' % (successes, config.cycles))
+    return 0 if successes == len(results) == config.cycles else 1

@@ -7,6 +7,7 @@ of the URDF itself. Any URDF link of the arm's chain can be the frame (``left_gr
 ``left_hand``, ``left_hand_camera``, ...).
 """
 import os
+from typing import NamedTuple
 
 import numpy as np
 import pybullet as p
@@ -60,6 +61,18 @@ def pose_error(T_current, T_target):
     """(6,) [position error (m); rotation vector (rad)] taking ``T_current`` to ``T_target``, in base."""
     rotation = Rotation.from_matrix(T_target[:3, :3] @ T_current[:3, :3].T).as_rotvec()
     return np.concatenate([T_target[:3, 3] - T_current[:3, 3], rotation])
+
+
+class Solid(NamedTuple):
+    """A box or a cylinder: ``kind`` ('box' | 'cylinder'), its pose ``T`` (4x4, m) in some frame, and its
+    ``half_extents`` (3,) m along its own axes (a cylinder: radius, radius, half length along z)."""
+    kind: str
+    T: np.ndarray
+    half_extents: np.ndarray
+
+    def moved(self, T_new_old):
+        """The same solid with its pose expressed in another frame (``T_new_old`` @ T)."""
+        return self._replace(T=T_new_old @ self.T)
 
 
 class PyBulletClientOwner:
@@ -154,6 +167,44 @@ class ArmKinematics(PyBulletClientOwner):
             points = [link_pose(self._robot, link, self._client)[:3, 3] for link in chain]
             self._reach_cache[frame] = (float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1))), points[-1])
         return self._reach_cache[frame]
+
+    def hand_solids(self, frame=None, opening=1.0):
+        """The gripper's solids in ``frame`` (default ``<side>_gripper``): what the hand camera sees of its
+        own hand.
+
+        Returns a list of :class:`Solid` (a box, or a cylinder along its own z), one per visual shape of
+        ``<side>_gripper_base`` and the links below it (fingers and finger tips), with the fingers
+        ``opening`` (0 closed .. 1 fully open) of their travel apart. The hand is rigid, so the result does
+        not depend on the arm's angles.
+        """
+        frame = frame or f'{self.side}_gripper'
+        hand_links = {self._link(f'{self.side}_gripper_base')}
+        grown = True
+        while grown:        # the links whose parent is already a hand link, until none is added
+            grown = False
+            for index in range(p.getNumJoints(self._robot, physicsClientId=self._client)):
+                info = p.getJointInfo(self._robot, index, physicsClientId=self._client)
+                if info[16] in hand_links and index not in hand_links:
+                    hand_links.add(index)
+                    grown = True
+                    if info[2] == p.JOINT_PRISMATIC:     # a finger: its open end is its limit farthest from 0
+                        travel = info[9] if abs(info[9]) >= abs(info[8]) else info[8]
+                        p.resetJointState(self._robot, index, opening * travel, physicsClientId=self._client)
+        T_frame_base = np.linalg.inv(link_pose(self._robot, self._link(frame), self._client))
+        solids = []
+        for shape in p.getVisualShapeData(self._robot, physicsClientId=self._client):
+            link, geometry, dimensions, position, orientation = shape[1], shape[2], shape[3], shape[5], shape[6]
+            if link not in hand_links:
+                continue
+            if geometry == p.GEOM_BOX:
+                kind, half_extents = 'box', 0.5 * np.asarray(dimensions)
+            elif geometry == p.GEOM_CYLINDER:       # dimensions: (length, radius) along the shape's z
+                kind, half_extents = 'cylinder', np.array([dimensions[1], dimensions[1], 0.5 * dimensions[0]])
+            else:
+                continue
+            T_base_solid = link_pose(self._robot, link, self._client) @ from_xyz_quat(position, orientation)
+            solids.append(Solid(kind, T_frame_base @ T_base_solid, half_extents))
+        return solids
 
     # --------------------------------------------------------------------------------- IK
     def ik(self, T_base_target, frame=None, seed=None, pos_tol=1e-3, rot_tol=np.radians(0.5),

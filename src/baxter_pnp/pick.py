@@ -53,6 +53,9 @@ class PickConfig:
     place_xy: Optional[List[float]] = None  # put the block down at this table position (base x, y; m)
     place_clearance: float = 0.004          # release the block this far above the table (m)
     max_grasp_attempts: int = 2             # re-servo and regrasp after a miss
+    cycles: int = 1                         # blocks to pick (and place) one after the other in one run
+    next_block_timeout: float = 30.0        # between cycles: wait this long (s) for the next block to appear
+    save_views: bool = False                # save every annotated camera view in the output directory (views/)
     speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
     resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
     fps: int = 20                           # hand camera rate (Hz)
@@ -108,7 +111,7 @@ class PickConfig:
                     'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
                     'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age',
                     'frame_timeout', 'robot_wait_timeout', 'view_depth', 'view_tolerance_px', 'max_residual_px',
-                    'max_height_error', 'waypoint_spacing'):
+                    'max_height_error', 'waypoint_spacing', 'next_block_timeout'):
             value = getattr(self, key)
             require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
                     'must be a positive number')
@@ -125,7 +128,9 @@ class PickConfig:
         require(len(self.gain) == 3 and self.gain[0] >= self.gain[1] > 0, 'gain',
                 'must be [gain at 0, gain at infinity, slope at 0] with gain at 0 >= gain at infinity > 0')
         require(self.estimator in ('sqp', 'ippe', 'sqpnp'), 'estimator', 'must be sqp, ippe or sqpnp')
-        require(isinstance(self.max_steps, int) and self.max_steps > 0, 'max_steps', 'must be a positive integer')
+        require(isinstance(self.save_views, bool), 'save_views', 'must be true or false')
+        for key in ('max_steps', 'cycles'):
+            require(isinstance(getattr(self, key), int) and getattr(self, key) > 0, key, 'must be a positive integer')
 
     @property
     def model(self):
@@ -205,26 +210,38 @@ def converged(T_current, T_goal, config):
     return translation <= config.position_tolerance and rotation <= config.yaw_tolerance
 
 
-def pbvs_target(T_base_gripper, T_base_goal, T_base_block, config, camera, T_gripper_camera):
-    """Next gripper pose of the look-and-move PBVS (the thesis's law, with its failures fixed).
+def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gripper_camera, clearance_px=None,
+                view_depth=None):
+    """Next gripper pose of the look-and-move PBVS (the thesis's law, with its failures fixed), and the goal
+    it steps toward.
 
-    Moves ``step_fraction`` of the remaining displacement toward ``T_base_goal`` (the hover pose),
-    bounded in translation and rotation, and shortened so that the block's vertices stay
-    ``view_margin_px`` inside the image after the move (``servo.keep_in_view_step``). Within
-    ``snap_distance`` of the goal the step goes all the way, which ends the exponential tail.
+    Moves ``step_fraction`` of the remaining displacement toward the goal, bounded in translation and
+    rotation, and shortened so that the block's vertices stay ``view_margin_px`` inside the image and,
+    given the hand's ``clearance_px`` map (``servo.hand_clearance_px``), clear of the fingers after the move
+    (``servo.keep_in_view_step``). Within ``snap_distance`` of the goal the step goes all the way, which
+    ends the exponential tail. The goal is the hover pose ``T_base_hover``, unless the straight path there
+    would take the block behind a finger (at the hover pose the block sits between the fingers, at the top
+    of the image): then it is :func:`view_pose` (at ``view_depth``, default ``config.view_depth``), from
+    where the path up between the fingers is clear.
+    Returns ``(T_base_gripper_next, T_base_goal)``.
     """
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+    T_base_goal = T_base_hover
+    if clearance_px is not None and not servo.path_in_view(T_base_gripper, T_base_hover, vertices_base, camera,
+                                                           T_gripper_camera, config.view_margin_px, clearance_px):
+        T_base_goal = view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config, view_depth)
     translation, _ = pose_error(T_base_gripper, T_base_goal)
     fraction = 1.0 if translation <= config.snap_distance else config.step_fraction
-    vertices_base = transform_points(T_base_block, config.model.vertices)
-    return servo.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
-                                   margin_px=config.view_margin_px, max_translation=config.max_step_translation,
-                                   max_rotation=config.max_step_rotation)
+    T_next = servo.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
+                                     margin_px=config.view_margin_px, max_translation=config.max_step_translation,
+                                     max_rotation=config.max_step_rotation, clearance_px=clearance_px)
+    return T_next, T_base_goal
 
 
-def view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config):
+def view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config, depth=None):
     """First goal of the velocity laws: the gripper with the hover pose's orientation, placed so that the
-    camera sees the block's centre ``view_depth`` away, in the image column it has at the hover pose and
-    at ``view_row_fraction`` of the image height.
+    camera sees the block's centre ``depth`` (default ``config.view_depth``, m) away, in the image column
+    it has at the hover pose and at ``view_row_fraction`` of the image height.
 
     At the hover pose the block appears between the fingers, which hide the top of the hand camera's
     image; a straight image path from a start near the top would pass behind a finger. Going first to
@@ -234,7 +251,7 @@ def view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config):
     block_at_hover = camera_goal(T_base_hover, T_base_block, T_gripper_camera)[:3, 3]
     column = camera.project(block_at_hover[None])[0, 0]
     x, y = camera.undistort_points(np.array([[column, config.view_row_fraction * (camera.height - 1)]]))[0]
-    block_in_camera = config.view_depth * np.array([x, y, 1.0])
+    block_in_camera = (config.view_depth if depth is None else depth) * np.array([x, y, 1.0])
     T_base_camera = np.eye(4)
     T_base_camera[:3, :3] = R_base_camera
     T_base_camera[:3, 3] = T_base_block[:3, 3] - R_base_camera @ block_in_camera

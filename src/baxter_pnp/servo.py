@@ -21,6 +21,7 @@ Laws (Chaumette & Hutchinson, "Visual Servo Control Part I/II", IEEE RAM 2006/20
 - ``hybrid_twist``: Malis's 2.5D law on ``(x, y, log Z/Z*, theta u)``.
 - ``AdaptiveGain``: ViSP's ``vpAdaptiveGain``.
 """
+import cv2
 import numpy as np
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
@@ -75,19 +76,82 @@ def look_and_move_step(T_base_gripper, T_base_goal, fraction, max_translation=No
     return interpolate_pose(T_base_gripper, T_base_goal, s)
 
 
-def points_in_view(T_base_camera, points_base, camera, margin_px=0.0):
+def ray_hits(origin, directions, solid):
+    """(N,) bool: which rays ``origin + t * directions[i]``, t >= 0, meet ``solid`` (a
+    ``kinematics.Solid``, a box or a cylinder along its z; all in the same frame, metres)."""
+    R, t = solid.T[:3, :3], solid.T[:3, 3]
+    o = R.T @ (np.asarray(origin, dtype=float) - t)         # in the solid's frame
+    d = np.asarray(directions, dtype=float) @ R
+    h = solid.half_extents
+    with np.errstate(divide='ignore', invalid='ignore'):
+        axes = slice(0, 3) if solid.kind == 'box' else slice(2, 3)      # slabs: all 3 axes, or z only
+        near = (-h[axes] - o[axes]) / d[:, axes]
+        far = (h[axes] - o[axes]) / d[:, axes]
+        entry = np.max(np.minimum(near, far), axis=1)
+        exit_ = np.min(np.maximum(near, far), axis=1)
+        if solid.kind == 'cylinder':    # and inside the radius: |o_xy + t d_xy| <= r, a quadratic in t
+            a = np.sum(d[:, :2] ** 2, axis=1)
+            b = 2.0 * d[:, :2] @ o[:2]
+            c = o[:2] @ o[:2] - h[0] ** 2
+            root = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
+            crossing = b * b - 4.0 * a * c >= 0.0
+            entry = np.where(crossing, np.maximum(entry, (-b - root) / (2.0 * a)), np.inf)
+            exit_ = np.where(crossing, np.minimum(exit_, (-b + root) / (2.0 * a)), -np.inf)
+    return exit_ >= np.maximum(entry, 0.0)
+
+
+def hand_clearance_px(camera, hand_solids_camera):
+    """(H, W) float32 map: each pixel's distance (pixels) to the nearest pixel where the hand hides the scene.
+
+    ``camera`` is a ``CameraModel``; ``hand_solids_camera`` the hand's ``kinematics.Solid`` s in the camera
+    optical frame (``ArmKinematics.hand_solids`` moved there). Every pixel's ray (distortion removed) is
+    tested against every solid; hidden pixels are 0.
+    """
+    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+    xy = camera.undistort_points(np.stack([u.ravel(), v.ravel()], axis=1))
+    rays = np.column_stack([xy, np.ones(len(xy))])
+    hidden = np.zeros(len(rays), dtype=bool)
+    for solid in hand_solids_camera:
+        hidden |= ray_hits(np.zeros(3), rays, solid)
+    free = (~hidden).reshape(camera.height, camera.width).astype(np.uint8)
+    return cv2.distanceTransform(free, cv2.DIST_L2, 5)
+
+
+def polygon_clear(pixels, clearance_px, margin_px):
+    """True if the convex polygon of ``pixels`` (N, 2) lies more than ``margin_px`` from every hidden pixel
+    of ``clearance_px`` (see :func:`hand_clearance_px`)."""
+    face = np.zeros(clearance_px.shape, np.uint8)
+    cv2.fillConvexPoly(face, cv2.convexHull(np.round(pixels).astype(np.int32)), 1)
+    inside = clearance_px[face > 0]
+    return bool(inside.size == 0 or inside.min() > margin_px)
+
+
+def points_in_view(T_base_camera, points_base, camera, margin_px=0.0, clearance_px=None):
     """True if every point (N,3) or (3,) in ``base`` is in front of the camera and projects at least
-    ``margin_px`` pixels inside the image of ``camera`` (a ``CameraModel``; distorted pixels)."""
+    ``margin_px`` pixels inside the image of ``camera`` (a ``CameraModel``; distorted pixels) and, given
+    the hand's ``clearance_px`` map (:func:`hand_clearance_px`), their polygon is more than ``margin_px``
+    from the pixels the hand hides."""
     points_camera = transforms.transform_points(transforms.invert(T_base_camera), np.atleast_2d(points_base))
     if np.any(points_camera[:, 2] <= 0.0):
         return False
     pixels = camera.project(points_camera)
     upper = np.array([camera.width - 1.0, camera.height - 1.0]) - margin_px
-    return bool(np.all(pixels >= margin_px) and np.all(pixels <= upper))
+    if not (np.all(pixels >= margin_px) and np.all(pixels <= upper)):
+        return False
+    return clearance_px is None or polygon_clear(pixels, clearance_px, margin_px)
+
+
+def path_in_view(T_base_gripper_from, T_base_gripper_to, points_base, camera, T_gripper_camera, margin_px=0.0,
+                 clearance_px=None, samples=12):
+    """True if ``points_in_view`` holds at ``samples`` poses evenly spread along the straight (SE(3)
+    interpolated) gripper path between the two poses, both ends included."""
+    return all(points_in_view(interpolate_pose(T_base_gripper_from, T_base_gripper_to, s) @ T_gripper_camera,
+                              points_base, camera, margin_px, clearance_px)
+               for s in np.linspace(0.0, 1.0, samples))
 
 
 def keep_in_view_step(T_base_gripper, T_base_goal, fraction, points_base, camera, T_gripper_camera,
-                      margin_px=20.0, max_translation=None, max_rotation=None, bisections=12):
+                      margin_px=20.0, max_translation=None, max_rotation=None, bisections=12, clearance_px=None):
     """``look_and_move_step`` that keeps ``points_base`` (the block's centre, or its vertices) in view.
 
     The step is split, in the camera's axes at the current pose, into a *lateral* translation
@@ -98,17 +162,20 @@ def keep_in_view_step(T_base_gripper, T_base_goal, fraction, points_base, camera
     1. the full step, if the points stay ``margin_px`` inside the image after it;
     2. otherwise the full lateral step with the axial and rotation parts scaled by the largest factor
        in [0, 1] that keeps the points in view (bisection);
-    3. otherwise (even the lateral step alone loses them) the lateral step alone, scaled likewise.
-
-    If the points are already out of view (with the margin) at the current pose, nothing can be kept
-    and the plain ``look_and_move_step`` is returned. ``camera`` is a ``CameraModel``,
-    ``T_gripper_camera`` the camera's pose in the gripper frame. Returns ``T_base_gripper_next``.
+    3. otherwise (even the lateral step alone loses them) the lateral step alone, scaled likewise;
+       if they are already out of view (with the margin) at the current pose, the whole lateral step:
+       it moves the camera toward where it sees the block as it will from the goal, while approaching or
+       rotating would push the block further out. ``camera`` is a ``CameraModel``,
+    ``T_gripper_camera`` the camera's pose in the gripper frame; with the hand's ``clearance_px`` map
+    (:func:`hand_clearance_px`) "in view" also means not behind (nor within ``margin_px`` of) a finger.
+    Returns ``T_base_gripper_next``.
     """
     def in_view(T_base_gripper_candidate):
-        return points_in_view(T_base_gripper_candidate @ T_gripper_camera, points_base, camera, margin_px)
+        return points_in_view(T_base_gripper_candidate @ T_gripper_camera, points_base, camera, margin_px,
+                              clearance_px)
 
     full_step = look_and_move_step(T_base_gripper, T_base_goal, fraction, max_translation, max_rotation)
-    if in_view(full_step) or not in_view(T_base_gripper):
+    if in_view(full_step):
         return full_step
 
     R_base_camera = T_base_gripper[:3, :3] @ T_gripper_camera[:3, :3]
@@ -135,7 +202,9 @@ def keep_in_view_step(T_base_gripper, T_base_goal, fraction, points_base, camera
 
     if in_view(step(1.0, 0.0)):
         return largest_feasible(lambda a: step(1.0, a))
-    return largest_feasible(lambda b: step(b, 0.0))
+    if in_view(T_base_gripper):
+        return largest_feasible(lambda b: step(b, 0.0))
+    return step(1.0, 0.0)
 
 
 def grasp_width(side_length, symmetry_angle):
@@ -171,16 +240,26 @@ def grasp_goal(T_base_block, side_length, grasp_depth, approach_height, symmetry
     if max_opening is not None and width > max_opening:
         raise ValueError('block of side %.3f m needs a %.3f m jaw gap, more than the gripper opening %.3f m'
                          % (side_length, width, max_opening))
+    best = grasp_orientations(T_base_block, symmetry_angle, T_base_gripper_current)[0]
+    position = T_base_block[:3, 3] + T_base_block[:3, 2] * (approach_height - grasp_depth)
+    return transforms.make_transform(best, position)
+
+
+def grasp_orientations(T_base_block, symmetry_angle, T_base_gripper_current):
+    """The distinct gripper orientations (``Rotation`` s, base) that grasp the block across a pair of faces
+    (see :func:`grasp_goal`), the smallest rotation from ``T_base_gripper_current`` first."""
     R_base_block = Rotation.from_matrix(T_base_block[:3, :3])
     # gripper x = block y, gripper y = block x (closing axis), gripper z = -block z
     R_block_gripper = Rotation.from_euler('z', np.pi / 2) * Rotation.from_euler('x', np.pi)
     n = int(round(2.0 * np.pi / symmetry_angle))
     yaws = np.concatenate([np.arange(n) * symmetry_angle, np.arange(n) * symmetry_angle + np.pi])
-    candidates = [R_base_block * Rotation.from_euler('z', yaw) * R_block_gripper for yaw in yaws]
     R_current = Rotation.from_matrix(T_base_gripper_current[:3, :3])
-    best = min(candidates, key=lambda R: (R_current.inv() * R).magnitude())
-    position = T_base_block[:3, 3] + T_base_block[:3, 2] * (approach_height - grasp_depth)
-    return transforms.make_transform(best, position)
+    candidates = []
+    for R in sorted((R_base_block * Rotation.from_euler('z', yaw) * R_block_gripper for yaw in yaws),
+                    key=lambda R: (R_current.inv() * R).magnitude()):
+        if all((R.inv() * other).magnitude() > 1e-6 for other in candidates):
+            candidates.append(R)
+    return candidates
 
 
 # --------------------------------------------------------------------------------------------------
@@ -342,16 +421,16 @@ def camera_twist_to_base(twist_cam, T_base_camera):
 
 
 def joint_velocities(J_base, twist_base, damping=1e-3, qdot_limits=None, q=None, lower=None, upper=None,
-                     limit_margin=0.05):
+                     limit_margin=0.05, horizon=0.2):
     """Joint velocities (rad/s) giving ``twist_base`` by damped least squares.
 
     ``qdot = J^T (J J^T + damping^2 I)^-1 twist`` with ``J_base`` (6, n) [linear; angular] in base.
     ``damping`` (same units as J's singular values) bounds the velocities near singularities. With the
-    current angles ``q`` and the joint limits ``lower``, ``upper`` (rad), a joint within ``limit_margin``
-    of a limit that the solution drives further into it is frozen (its Jacobian column removed) and the
-    rest re-solved: a 7-joint arm keeps the twist with its other joints. If ``qdot_limits`` (n,) rad/s
-    is given and exceeded, all joint velocities are divided by the same factor, so the end effector
-    keeps the twist's direction at a lower speed.
+    current angles ``q`` and the joint limits ``lower``, ``upper`` (rad), a joint that the solution would
+    take within ``limit_margin`` of a limit in ``horizon`` seconds (how long the robot applies a velocity
+    command) is frozen (its Jacobian column removed) and the rest re-solved: a 7-joint arm keeps the twist
+    with its other joints. If ``qdot_limits`` (n,) rad/s is given and exceeded, all joint velocities are
+    divided by the same factor, so the end effector keeps the twist's direction at a lower speed.
     """
     J = np.asarray(J_base, dtype=float)
     twist = np.asarray(twist_base, dtype=float)
@@ -361,8 +440,9 @@ def joint_velocities(J_base, twist_base, damping=1e-3, qdot_limits=None, q=None,
         qdot = J_free.T @ np.linalg.solve(J_free @ J_free.T + damping ** 2 * np.eye(J.shape[0]), twist)
         if q is None:
             break
-        blocked = free & (((np.asarray(q) <= np.asarray(lower) + limit_margin) & (qdot < 0)) |
-                          ((np.asarray(q) >= np.asarray(upper) - limit_margin) & (qdot > 0)))
+        ahead = np.asarray(q) + qdot * horizon
+        blocked = free & (((ahead <= np.asarray(lower) + limit_margin) & (qdot < 0)) |
+                          ((ahead >= np.asarray(upper) - limit_margin) & (qdot > 0)))
         if not blocked.any():
             break
         free &= ~blocked

@@ -159,3 +159,55 @@ def test_bounded_twist_keeps_direction():
     bounded = pick.bounded_twist(twist, 0.1, 0.5)
     assert np.linalg.norm(bounded[:3]) <= 0.1 + 1e-12 and np.linalg.norm(bounded[3:]) <= 0.5 + 1e-12
     np.testing.assert_allclose(bounded / np.linalg.norm(bounded), twist / np.linalg.norm(twist))
+
+
+def test_a_block_already_near_a_finger_is_moved_away_from_it(hand_clearance):
+    """Within the margin of a finger nothing can be 'kept' in view: the step must still take the block away
+    from the finger (the old rule then took the plain step, whatever it did)."""
+    import cv2
+    config = pick.PickConfig(side_length=0.046)
+    T_base_block = block_at(0.712, -0.015, -2.06)
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+    T_hover = pick.hover_pose(T_base_block, config, gripper_down_at(0.65, 0.25, 0.14))
+    T_view = pick.view_pose(T_base_block, T_hover, T_GRIPPER_CAMERA, CAMERA, config)
+
+    def finger_distance_px(T_base_gripper):
+        pixels = CAMERA.project(transform_points(invert(T_base_gripper @ T_GRIPPER_CAMERA), vertices_base))
+        face = np.zeros(hand_clearance.shape, np.uint8)
+        cv2.fillConvexPoly(face, cv2.convexHull(np.round(pixels).astype(np.int32)), 1)
+        return hand_clearance[face > 0].min()
+
+    # the straight path without the map goes behind a finger: find a pose on it just short of the finger
+    clear = gripper_down_at(0.65, 0.25, 0.14)
+    hidden, _ = pick.pbvs_target(clear, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+    while finger_distance_px(hidden) > 0.0:
+        clear, (hidden, _) = hidden, pick.pbvs_target(hidden, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
+    low, high = 0.0, 1.0
+    T = clear
+    while not 0.0 < finger_distance_px(T) < 0.5 * config.view_margin_px:
+        middle = 0.5 * (low + high)
+        T = servo.interpolate_pose(clear, hidden, middle)
+        low, high = (middle, high) if finger_distance_px(T) > 0.0 else (low, middle)
+    kept = servo.keep_in_view_step(T, T_view, config.step_fraction, vertices_base, CAMERA, T_GRIPPER_CAMERA,
+                                   margin_px=config.view_margin_px, clearance_px=hand_clearance)
+    assert finger_distance_px(T) < finger_distance_px(kept)
+    assert servo.points_in_view(kept @ T_GRIPPER_CAMERA, vertices_base, CAMERA)
+
+
+def test_view_kept_twist_slows_a_twist_that_would_push_the_block_out_of_the_image():
+    config = pick.PickConfig()
+    T_base_camera = gripper_down_at(0.65, 0.25, 0.14) @ T_GRIPPER_CAMERA
+    T_base_block = block_at(0.70, 0.25, 0.0)
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+    assert servo.points_in_view(T_base_camera, vertices_base, CAMERA, config.view_margin_px)
+    gentle = np.array([0.0, 0.0, 0.01, 0.0, 0.0, 0.0])      # 1 cm/s toward the table: stays in view
+    np.testing.assert_array_equal(pick.view_kept_twist(gentle, T_base_camera, T_base_block, config, CAMERA), gentle)
+    pushing = np.array([0.0, 0.0, 0.0, 1.2, 0.0, 0.0])      # a fast tilt sweeps the block off the image
+    assert not servo.points_in_view(servo.integrate_twist(T_base_camera, pushing, 0.5), vertices_base, CAMERA,
+                                    config.view_margin_px)
+    kept = pick.view_kept_twist(pushing, T_base_camera, T_base_block, config, CAMERA)
+    assert 0.0 < np.linalg.norm(kept[3:]) < np.linalg.norm(pushing[3:])
+    assert servo.points_in_view(servo.integrate_twist(T_base_camera, kept, 0.5), vertices_base, CAMERA,
+                                config.view_margin_px - 1e-6)
+    np.testing.assert_allclose(servo.twist_between(T_base_camera, servo.integrate_twist(T_base_camera, pushing, 0.5),
+                                                   0.5), pushing, atol=1e-9)

@@ -510,8 +510,10 @@ class PickApplication:
             if at_view and error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
                 self.limb.exit_control_mode()
                 return look.T_base_block
-            twist_base = servo.camera_twist_to_base(pick.bounded_twist(twist, c.max_linear_speed,
-                                                                       c.max_angular_speed), look.T_base_camera)
+            twist = pick.view_kept_twist(pick.bounded_twist(twist, c.max_linear_speed, c.max_angular_speed),
+                                         look.T_base_camera, look.T_base_block, c, camera,
+                                         self.hand_clearance(camera))
+            twist_base = servo.camera_twist_to_base(twist, look.T_base_camera)
             q = self.limb.joint_positions()
             qdot = servo.joint_velocities(self.kinematics.jacobian(q, camera_frame), twist_base,
                                           qdot_limits=velocity_limits, q=q, lower=self.kinematics.lower,

@@ -327,6 +327,26 @@ def bounded_twist(twist, max_linear, max_angular):
     return twist * scale
 
 
+def view_kept_twist(twist_camera, T_base_camera, T_base_block, config, camera, clearance_px=None, lookahead=0.5):
+    """The velocity laws' keep-in-view: ``twist_camera`` (camera frame, (v m/s, w rad/s)), or a gentler one
+    if, kept for ``lookahead`` seconds, it would take the block's vertices within ``view_margin_px`` of the
+    image border or (given ``clearance_px``) of the fingers.
+
+    The camera pose the twist reaches in ``lookahead`` s goes through ``servo.keep_in_view_step`` (the
+    PBVS rule: its approach and rotation are scaled down first, its lateral re-centring kept), and the
+    twist is replaced by the one that reaches the kept pose in the same time. (Switching to a PBVS step
+    toward the goal instead, as in Gans & Hutchinson's switched schemes, chattered against the law near a
+    finger in the trials.)
+    """
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+    T_ahead = servo.integrate_twist(T_base_camera, twist_camera, lookahead)
+    if servo.points_in_view(T_ahead, vertices_base, camera, config.view_margin_px, clearance_px):
+        return np.asarray(twist_camera, dtype=float)
+    T_kept = servo.keep_in_view_step(T_base_camera, T_ahead, 1.0, vertices_base, camera, np.eye(4),
+                                     margin_px=config.view_margin_px, clearance_px=clearance_px)
+    return servo.twist_between(T_base_camera, T_kept, lookahead)
+
+
 def servo_twist(mode, T_camera_block, T_camera_goal_block, vertices_xy, model, gain):
     """Camera twist (camera frame, (v m/s, w rad/s)) of the IBVS or 2.5D law, and the RMS feature error.
 

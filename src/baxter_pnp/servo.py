@@ -23,7 +23,7 @@ Laws (Chaumette & Hutchinson, "Visual Servo Control Part I/II", IEEE RAM 2006/20
 """
 import cv2
 import numpy as np
-from scipy.linalg import expm
+from scipy.linalg import expm, logm
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp import transforms
@@ -461,3 +461,10 @@ def integrate_twist(T_a_b, twist_b, dt):
     twist_hat[:3, :3] = _skew(twist_b[3:])
     twist_hat[:3, 3] = twist_b[:3]
     return T_a_b @ expm(dt * twist_hat)
+
+
+def twist_between(T_a_from, T_a_to, dt):
+    """The constant twist (in the moving frame, (v m/s, w rad/s)) that takes a frame from ``T_a_from`` to
+    ``T_a_to`` in ``dt`` seconds: the inverse of :func:`integrate_twist` (``logm`` of the relative pose)."""
+    twist_hat = np.real(logm(transforms.invert(T_a_from) @ T_a_to)) / dt
+    return np.concatenate([twist_hat[:3, 3], [twist_hat[2, 1], twist_hat[0, 2], twist_hat[1, 0]]])

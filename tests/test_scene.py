@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from baxter_pnp.kinematics import load_start_poses
-from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, Scene, SceneError, load_scene
+from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, RESPAWN_DELAY, Respawn, Scene, SceneError, load_scene
 
 VALID = {
     'table': {'top_z': -0.15, 'center': [0.75, 0.0], 'size': [0.9, 1.5]},
@@ -122,3 +122,46 @@ def test_load_scene_prefixes_the_path(tmp_path):
     with pytest.raises(ValueError, match=rf'^{path}: objects\[0\].side: must be a positive number'):
         load_scene(str(path))
     assert load_scene(DEFAULT_SCENE_YAML).objects[0].shape == 'square'
+
+
+# ------------------------------------------------------------------------------------------------ respawn
+WITH_RESPAWN = {**VALID, 'respawn': {'poses': [[0.62, 0.30, 0.5], [0.80, -0.20, -1.0]], 'delay': 1.5, 'object': 0}}
+
+
+def test_respawn_parses_with_defaults():
+    respawn = Scene.from_dict(WITH_RESPAWN).respawn
+    assert respawn == Respawn(((0.62, 0.30, 0.5), (0.80, -0.20, -1.0)), 1.5, 0)
+    short = Scene.from_dict(_set(VALID, ('respawn',), {'poses': [[0.8, 0.0, 0.0]]})).respawn
+    assert (short.delay, short.object) == (RESPAWN_DELAY, 0) == (2.0, 0)
+    assert Scene.from_dict(VALID).respawn is None
+
+
+RESPAWN_INVALID = [
+    (('respawn',), [[0.6, 0.3, 0.0]], 'respawn: must be a mapping'),
+    (('respawn', 'pose'), [], 'respawn.pose: unknown key'),
+    (('respawn', 'poses'), DELETE, 'respawn.poses: missing'),
+    (('respawn', 'poses'), [], 'respawn.poses: must be a non-empty list'),
+    (('respawn', 'poses'), [0.6, 0.3, 0.0], 'respawn.poses[0]: must be a list of 3 numbers'),
+    (('respawn', 'poses', 1), [0.8, -0.2], 'respawn.poses[1]: must be a list of 3 numbers'),
+    (('respawn', 'poses', 1), [0.8, 'y', 0.0], 'respawn.poses[1][1]: must be a number'),
+    (('respawn', 'poses', 1), [1.5, 0.0, 0.0], 'respawn.poses[1]: [1.5, 0.0] is not on the table'),
+    (('respawn', 'poses', 1), [0.61, 0.11, 0.0], 'respawn.poses[1]: the block would overlap objects[1]'),
+    (('respawn', 'delay'), -1.0, 'respawn.delay: must be a non-negative number'),
+    (('respawn', 'object'), 2, 'respawn.object: 2 but the scene has 2 object(s)'),
+    (('respawn', 'object'), 0.5, 'respawn.object: must be a non-negative integer'),
+]
+
+
+@pytest.mark.parametrize('path, value, message', RESPAWN_INVALID,
+                         ids=[m.split(':')[0] + ':' + str(v)[:12] for _, v, m in RESPAWN_INVALID])
+def test_invalid_respawn_names_the_key(path, value, message):
+    with pytest.raises(SceneError) as error:
+        Scene.from_dict(_set(WITH_RESPAWN, path, value))
+    assert str(error.value).startswith(message)
+
+
+def test_respawn_of_the_second_block_may_not_overlap_the_first():
+    respawn = {'poses': [[0.71, 0.26, 0.0]], 'object': 1}
+    with pytest.raises(SceneError, match=r'^respawn.poses\[0\]: the block would overlap objects\[0\]'):
+        Scene.from_dict({**VALID, 'respawn': respawn})
+    assert Scene.from_dict({**VALID, 'respawn': {**respawn, 'poses': [[0.60, 0.10, 1.0]]}}).respawn.object == 1

@@ -1,15 +1,21 @@
-"""Batch-trials runner (baxter_pnp.sim.trials): random scenes, ground-truth scoring, summary; one real trial."""
+"""Batch-trials runner (baxter_pnp.sim.trials): random scenes, ground-truth scoring, summary, the soak's pure
+parts; one real trial and (when the application supports ``--cycles``) a two-cycle soak."""
+import json
 import math
+import os
+import subprocess
 
 import cv2
 import numpy as np
 import pytest
+import yaml
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp.sim import trials
 from baxter_pnp.models import model_for
-from baxter_pnp.sim.launcher import RosMaster, free_port, run_script
-from baxter_pnp.sim.scene import Scene, Table
+from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.sim.launcher import RosMaster, free_port, project_python, run_script
+from baxter_pnp.sim.scene import Scene, SceneError, Table
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
 
@@ -165,3 +171,182 @@ def test_run_script_captures_the_log_and_interrupts_a_script_that_overruns(tmp_p
     assert f"master {master.uri} ['0.1']" in quick.log()
     slow = run_script(master, str(script), [60], timeout=1.0, log_path=tmp_path / 'slow.log')
     assert slow.timed_out and slow.returncode != 0 and slow.wall_seconds < 10.0
+
+
+# ============================================================================================ faults, distractors
+def test_same_colour_distractor_and_faults_go_into_the_scene(tmp_path):
+    faults = trials.load_faults_mapping(os.path.join(PACKAGE_ROOT, 'config', 'faults_batch.yaml'))
+    assert faults == {'camera': {'drop_probability': 0.2, 'latency': 0.1}}
+    for seed in range(6):
+        scene = trials.random_scene(np.random.default_rng(seed), 'down', distractors=1, same_colour_distractor=True,
+                                    faults=faults)
+        parsed = Scene.from_dict(scene)
+        assert (parsed.faults.camera.drop_probability, parsed.faults.camera.latency) == (0.2, 0.1)
+        assert len(scene['objects']) == 3 and scene['objects'][0]['shape'] == 'square'
+        same = [o for o in scene['objects'][1:] if tuple(o['color']) == GREEN]
+        assert len(same) == 1 and same[0]['shape'] in ('triangle', 'pentagon', 'hexagon'), scene['objects']
+        pixels, depths, camera = projected_top_face(same[0], 'down')
+        assert np.all(depths > 0) and np.all(pixels >= 19.9)
+    clean = trials.random_scene(np.random.default_rng(seed), 'down', distractors=1)
+    assert 'faults' not in clean and Scene.from_dict(clean).faults.summary() == 'none'
+    assert clean['objects'] == scene['objects'][:2]          # same seed: same scene, plus the extra block
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump({'faults': {'camera': {'drop_probability': 1.5}}}))
+    with pytest.raises(SceneError, match=r'faults.camera.drop_probability: must be a probability'):
+        trials.load_faults_mapping(str(bad))
+
+
+def test_rows_carry_their_conditions_and_are_summarised_per_condition(tmp_path, capsys):
+    def row(verified, faults, same=False, mode='pbvs'):
+        return {'mode': mode, 'start_pose': 'down', 'verified': verified, 'app_success': verified,
+                'failure_reason': None if verified else 'block_lost', 'centring_mm': 1.0 if verified else None,
+                'centring_x_mm': 1.0 if verified else None, 'centring_y_mm': 0.0 if verified else None,
+                'pre_close_offset_mm': 1.0, 'time_s': 8.0, 'wall_s': 20.0, 'timed_out': False,
+                'distractors': 1 if same else 0, 'same_colour_distractor': same, 'faults': faults}
+    faulty = 'camera.drop_probability=0.2, camera.latency=0.1'
+    clean_rows = [row(True, 'none'), row(True, 'none')]
+    faulty_rows = [row(True, faulty, True), row(False, faulty, True), row(False, faulty, True)]
+    trials.write_csv(clean_rows, tmp_path / 'clean.csv')
+    trials.write_csv(faulty_rows, tmp_path / 'faulty.csv')
+    merged = trials.read_csv(tmp_path / 'clean.csv') + trials.read_csv(tmp_path / 'faulty.csv')
+    assert merged[2]['faults'] == faulty and merged[2]['same_colour_distractor'] is True
+    summary = trials.summarise(merged, by_condition=True)
+    assert list(summary) == ['pbvs [faults: none; distractors: 0]',
+                             f"pbvs [faults: {faulty}; distractors: 1 (1 of the target's colour)]"]
+    assert [(s['trials'], s['verified']) for s in summary.values()] == [(2, 2), (3, 1)]
+    assert trials.summarise(merged)['pbvs']['trials'] == 5
+    old = {k: v for k, v in row(True, None).items() if k not in ('faults', 'same_colour_distractor')}
+    assert trials.condition(old) == 'faults: none; distractors: 0'       # a CSV from before the columns
+    trials.report(merged, str(tmp_path), 'test')
+    printed = capsys.readouterr().out
+    assert f'pbvs [faults: {faulty}; distractors: 1' in printed and '| 1/3 (33 %)' in printed
+    with open(tmp_path / 'summary.json') as f:
+        assert len(json.load(f)['per_mode_and_condition']) == 2
+
+
+# ============================================================================================ soak (pure parts)
+def test_soak_poses_are_pickable_in_view_and_away_from_the_place_position():
+    place = trials.SOAK_PLACE_XY
+    T_base_camera, _, camera, _ = trials.start_view('down')
+    clearance = trials.hand_clearance_px('down')
+    side, poses = trials.soak_poses(np.random.default_rng(4), 'down', 6, place)
+    assert 0.03 <= side <= 0.05 and len(poses) == 6 and len(set(poses)) == 6
+    model = model_for('square', side)
+    for x, y, yaw in poses:
+        assert np.hypot(x - place[0], y - place[1]) >= trials.SOAK_PLACE_CLEARANCE
+        T = trials.block_pose((x, y), yaw, -0.15)
+        assert trials.top_face_in_view(T, model, T_base_camera, camera, 19.9, clearance)
+        assert trials.pickable(T, side, 'down')
+    assert trials.soak_poses(np.random.default_rng(4), 'down', 6, place) == (side, poses)
+    near = trials.soak_poses(np.random.default_rng(4), 'down', 30, (0.62, 0.26))[1]    # mid-view place position
+    assert min(np.hypot(x - 0.62, y - 0.26) for x, y, _ in near) >= trials.SOAK_PLACE_CLEARANCE
+    scene = Scene.from_dict(trials.soak_scene(side, poses, 'down', faults={'camera': {'latency': 0.1}}))
+    (block,) = scene.objects
+    assert (block.shape, block.color, block.side) == ('square', GREEN, round(side, 5))
+    assert (block.xy, block.yaw) == (poses[0][:2], poses[0][2])
+    assert scene.respawn.poses == tuple(poses[1:]) and scene.respawn.object == 0 and scene.respawn.delay == 2.0
+    assert scene.faults.camera.latency == 0.1 and scene.start == 'down'
+    with pytest.raises(ValueError, match='at least two poses'):
+        trials.soak_scene(side, poses[:1], 'down')
+
+
+STATUS = '''Name:\tpython
+State:\tS (sleeping)
+VmPeak:\t  812344 kB
+VmRSS:\t  204800 kB
+RssAnon:\t  150000 kB
+Threads:\t12
+'''
+
+
+def fake_proc(root, processes):
+    """A /proc-like tree: processes = {pid: (parent pid, comm, VmRSS kB or None)}."""
+    for pid, (parent, comm, rss) in processes.items():
+        d = root / str(pid)
+        d.mkdir()
+        (d / 'stat').write_text(f'{pid} ({comm}) S {parent} {pid} {pid} 0 -1 4194560 1 0 0 0 3 1 0 0 20 0 1 0\n')
+        (d / 'comm').write_text(comm + '\n')
+        (d / 'status').write_text(f'Name:\t{comm}\n' + ('' if rss is None else f'VmRSS:\t {rss} kB\n'))
+    (root / 'self').mkdir()                                      # not a PID: ignored
+    return str(root)
+
+
+def test_memory_of_the_python_process_in_a_process_tree(tmp_path):
+    assert trials.vm_rss_mib(STATUS) == 200.0
+    assert trials.vm_rss_mib('Name:\tzombie\nState:\tZ (zombie)\n') is None
+    proc = fake_proc(tmp_path, {
+        100: (1, 'bash', 4096),                  # the launched wrapper
+        101: (100, 'python3', 307200),           # the application's interpreter: 300 MiB
+        102: (101, 'python3', 10240),            # a helper it started
+        103: (101, 'sh', 900000),                # not Python
+        200: (1, 'python3', 999999),             # not in the tree
+        201: (200, 'python', None)})             # a zombie
+    assert sorted(trials.process_tree(100, proc)) == [100, 101, 102, 103]
+    assert trials.python_rss_mib(100, proc) == (101, 300.0)
+    assert trials.python_rss_mib(102, proc) == (102, 10.0)
+    assert trials.python_rss_mib(201, proc) == (None, None)
+    assert trials.python_rss_mib(999, proc) == (None, None)       # gone
+
+
+def test_soak_cycles_are_scored_by_the_lifts_in_their_window():
+    rest_z = -0.13
+    heights = [0, 0, 0.06, 0.1, 0.06, 0.0, 0.0, 0.04, 0.0, 0.0, 0.07, 0.08, 0.0, 0.0, 0.0]   # rise above rest (m)
+    samples = [trials.GroundTruthSample(float(t), make_transform(None, (0.6, 0.2, rest_z + h)), np.eye(4), 100.0)
+               for t, h in enumerate(heights)]
+    lifts = trials.lift_times(samples, rest_z)
+    assert lifts == [2.0, 10.0]                  # 4 cm is not a lift; each lift counted once, when it starts
+    results = [{'success': True, 'time_s': 5.0, 'failure_reason': None},      # lifted at 2: verified
+               {'success': True, 'time_s': 6.0, 'failure_reason': None},      # no lift in (6, 9]: not verified
+               {'success': False, 'time_s': 7.0, 'failure_reason': 'grasp_missed'},   # lifted at 10, app failed
+               {'success': True, 'time_s': 4.0, 'failure_reason': None}]      # no lift in (12, 14]: not verified
+    rows = trials.score_cycles(results, [6.0, 9.0, 12.0, 14.0], lifts, start=1.0)
+    assert [(r['cycle'], r['lifted'], r['verified']) for r in rows] == [
+        (1, True, True), (2, False, False), (3, True, False), (4, False, False)]
+    assert [r['cycle_sim_s'] for r in rows] == [5.0, 3.0, 3.0, 2.0]
+    for row, (app, fake) in zip(rows, [(100.0, 150.0), (None, None), (104.0, 150.0), (110.0, 153.0)]):
+        row.update(app_rss_mib=app, fake_rss_mib=fake)
+    summary = trials.summarise_soak(rows, cycles=5)
+    assert (summary['finished'], summary['app_successes'], summary['verified']) == (4, 3, 1)
+    assert summary['app_success_pct'] == 60.0 and summary['verified_pct'] == 20.0
+    assert summary['failures'] == {'not_lifted': 2, 'grasp_missed': 1, 'not_finished': 1}
+    assert summary['time_to_grasp_median_s'] == 5.0 and summary['cycle_median_s'] == 3.0
+    assert summary['app_memory'] == {'start_mib': 100.0, 'start_cycle': 1, 'end_mib': 110.0, 'end_cycle': 4,
+                                     'growth_pct': pytest.approx(10.0)}
+    assert summary['fake_memory']['growth_pct'] == pytest.approx(2.0)
+    text = trials.format_soak(summary)
+    assert 'app-reported successes 3/5 (60 %), verified by ground truth 1/5 (20 %)' in text
+    assert '100 MiB after cycle 1 -> 110 MiB after cycle 4 (+10.0 %)' in text
+
+
+def test_soak_options():
+    args = trials.parse_args(['--soak', '5'])
+    assert (args.mode, args.start_pose, args.place) == ('pbvs', 'down', list(trials.SOAK_PLACE_XY))
+    args = trials.parse_args(['--soak', '5', '--mode', 'ibvs', '--start-pose', 'angled', '--place', '0.6,0.1'])
+    assert (args.mode, args.start_pose, args.place) == ('ibvs', 'angled', [0.6, 0.1])
+    assert (trials.parse_args([]).mode, trials.parse_args([]).start_pose, trials.parse_args([]).place) == (
+        'all', 'both', None)
+    for bad in (['--soak', '1'], ['--soak', '3', '--mode', 'all'], ['--soak', '3', '--distractors', '1'],
+                ['--soak', '3', '--distractor-same-colour'], ['--place', '0.6']):
+        with pytest.raises(SystemExit):
+            trials.parse_args(bad)
+
+
+def app_has_cycles():
+    """True if pick_square.py accepts --cycles (the soak's contract with the application)."""
+    help_text = subprocess.run([project_python(), os.path.join(PACKAGE_ROOT, 'scripts', 'pick_square.py'), '--help'],
+                               capture_output=True, text=True, timeout=120).stdout
+    return '--cycles' in help_text
+
+
+def test_a_two_cycle_soak_in_one_session(ros_node, ros_master, tmp_path):
+    if not app_has_cycles():
+        pytest.skip('pick_square.py does not accept --cycles yet (the soak needs it)')
+    rows, summary = trials.run_soak(ros_master, 2, 'pbvs', 'down', trials.SOAK_PLACE_XY, str(tmp_path), seed=0,
+                                    timeout_per_cycle=150.0)
+    assert (summary['returncode'], summary['timed_out']) == (0, False), summary
+    assert [(r['app_success'], r['lifted'], r['verified']) for r in rows] == [(True, True, True)] * 2, rows
+    assert summary['respawns'] >= 1                  # the first block was put back at the second pose
+    assert rows[0]['respawns'] == 0 and rows[1]['respawns'] >= 1
+    assert summary['app_memory']['start_mib'] > 50 and summary['fake_memory']['start_mib'] > 50
+    for name in ('soak.csv', 'soak_memory.csv', 'soak_memory.png', 'ground_truth.csv', 'scene.yaml', 'pick.log'):
+        assert (tmp_path / name).exists(), name

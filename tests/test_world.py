@@ -3,6 +3,7 @@ import dataclasses
 
 import cv2
 import numpy as np
+import pybullet as p
 import pytest
 from scipy.spatial.transform import Rotation
 
@@ -10,7 +11,7 @@ from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.models import model_for
 from baxter_pnp.kinematics import load_start_poses
-from baxter_pnp.sim.scene import CameraError, load_scene
+from baxter_pnp.sim.scene import CameraError, Scene, load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
 
@@ -257,3 +258,97 @@ def test_object_poses_and_place_object(world):
     (T,) = world.object_poses()
     np.testing.assert_allclose(T[:3, 3], [0.55, -0.1, -0.13], atol=1e-4)
     assert Rotation.from_matrix(T[:3, :3]).as_euler('xyz')[2] == pytest.approx(-0.3, abs=1e-4)
+
+
+# ------------------------------------------------------------------------------------------------ respawn
+def step_for(world, seconds):
+    """Step ``seconds`` of simulated time; the respawn count after each step."""
+    counts = []
+    for _ in range(int(round(seconds / world.time_step))):
+        world.step()
+        counts.append(world.respawns)
+    return counts
+
+
+def test_respawn_fires_only_once_the_lifted_block_is_down_let_go_and_the_gripper_clear(kinematics):
+    poses = [[0.60, 0.10, 0.3], [0.66, -0.05, -0.2]]
+    delay = 0.5
+    scene = load_scene()
+    scene = Scene.from_dict({'objects': [{'shape': 'square', 'side': 0.04, 'height': 0.02, 'color': [0.1, 0.7, 0.1],
+                                          'xy': list(scene.objects[0].xy), 'yaw': scene.objects[0].yaw}],
+                             'respawn': {'poses': poses, 'delay': delay}})
+    world = SimWorld(scene)
+    (block,) = world.object_poses()
+    yaw = Rotation.from_matrix(block[:3, :3]).as_euler('xyz')[2]
+    x, y, top_z = block[0, 3], block[1, 3], world.scene.table.top_z
+    block_top = top_z + 0.02
+    assert set(step_for(world, 2 * delay)) == {0}                  # never lifted: stays
+    for z in (top_z + 0.10, top_z + 0.05, top_z + 0.008):         # grasp it
+        move_gripper(world, kinematics, gripper_down([x, y, z], yaw))
+    world.command_gripper('left', 0.0, force_percent=40.0, velocity_percent=50.0)
+    step_for(world, 1.5)
+    for z in (top_z + 0.06, top_z + 0.108):                         # lift it 10 cm
+        move_gripper(world, kinematics, gripper_down([x, y, z], yaw), speed_ratio=0.3)
+    assert world.object_poses()[0][2, 3] > block_top + 0.08 and world.gripper_state('left')['gripping']
+    assert set(step_for(world, 2 * delay)) == {0}                  # held in the air
+    move_gripper(world, kinematics, gripper_down([x, y, top_z + 0.009], yaw), speed_ratio=0.3)
+    assert world.object_poses()[0][2, 3] == pytest.approx(block_top, abs=2e-3)
+    assert set(step_for(world, 2 * delay)) == {0}                  # put down but still held
+    world.command_gripper('left', 100.0)
+    assert set(step_for(world, 2 * delay)) == {0}                  # let go, fingers still around it
+    move_gripper(world, kinematics, gripper_down([x, y, block_top + 0.07], yaw))
+    assert set(step_for(world, 2 * delay)) == {0}                  # tip 7 cm above its top: too close
+    np.testing.assert_allclose(world.object_poses()[0][:2, 3], [x, y], atol=3e-3)
+    q = kinematics.ik(gripper_down([x, y, block_top + 0.09], yaw), seed=left_angles(world))
+    world.command_arm_positions('left', dict(zip(LEFT, q)), 0.3)
+    clearance, counts = [], []                                     # tip above the block's top (m), respawns
+    for _ in range(int(3.0 / world.time_step)):
+        clearance.append(world.link_pose('left_gripper')[2, 3] - block_top)
+        world.step()
+        counts.append(world.respawns)
+    assert counts[-1] == 1
+    clear = np.nonzero(np.array(clearance) < 0.08)[0][-1] + 1       # first step of the tip 8 cm above for good
+    fired_after = (counts.index(1) - clear + 1) * world.time_step   # s after the tip got clear
+    assert delay <= fired_after < delay + 2 * world.time_step, fired_after
+    T = world.object_poses()[0]                                    # at rest on the table at the first pose
+    np.testing.assert_allclose(T[:3, 3], [0.60, 0.10, block_top], atol=1e-3)
+    assert Rotation.from_matrix(T[:3, :3]).as_euler('xyz') == pytest.approx([0, 0, 0.3], abs=1e-3)
+    assert set(step_for(world, 2 * delay)) == {1}                  # not lifted since: stays
+    world.place_object(0, (0.60, 0.10), 0.3)                       # dropped from 5 cm (e.g. a failed place)
+    body = world._blocks[0]
+    position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=world._client)
+    p.resetBasePositionAndOrientation(body, [position[0], position[1], position[2] + 0.05], orientation,
+                                      physicsClientId=world._client)
+    counts = step_for(world, 2 * delay + 0.5)
+    assert counts[-1] == 2 and counts.count(2) < len(counts) // 2   # lands, rests for `delay`, moves on
+    np.testing.assert_allclose(world.object_poses()[0][:3, 3], [0.66, -0.05, block_top], atol=1e-3)
+    world.close()
+
+
+def test_without_respawn_key_the_count_stays_zero(world):
+    assert world.scene.respawn is None and world.respawns == 0
+
+
+def test_respawn_needs_the_block_on_the_table_not_on_another_block():
+    square = {'shape': 'square', 'side': 0.03, 'height': 0.02, 'color': [0.1, 0.7, 0.1], 'xy': [0.60, 0.30]}
+    base = {'shape': 'hexagon', 'side': 0.05, 'height': 0.02, 'color': [0.8, 0.1, 0.1], 'xy': [0.70, 0.10]}
+    world = SimWorld(Scene.from_dict({'objects': [square, base],
+                                      'respawn': {'poses': [[0.62, -0.05, 0.2]], 'delay': 0.5}}))
+    top_z = world.scene.table.top_z
+
+    def drop_target_at(xy, bottom_z):
+        """Teleport the target block, upright and still, its underside at ``bottom_z`` (m) above ``xy``."""
+        p.resetBasePositionAndOrientation(world._blocks[0], [xy[0], xy[1], bottom_z + 0.01], [0, 0, 0, 1],
+                                          physicsClientId=world._client)
+        p.resetBaseVelocity(world._blocks[0], [0, 0, 0], [0, 0, 0], physicsClientId=world._client)
+
+    drop_target_at((0.60, 0.30), top_z + 0.025)                     # a 2.5 cm drop onto the table: not lifted
+    assert set(step_for(world, 1.0)) == {0}
+    drop_target_at((0.70, 0.10), top_z + 0.035)                     # lifted 3.5 cm, lands on the hexagon
+    assert set(step_for(world, 2.0)) == {0}
+    np.testing.assert_allclose(world.object_poses()[0][:3, 3], [0.70, 0.10, top_z + 0.04], atol=2e-3)
+    drop_target_at((0.60, 0.30), top_z + 0.001)                     # then on the table
+    counts = step_for(world, 1.0)
+    assert counts[-1] == 1 and 0.5 < counts.index(1) * world.time_step < 0.8
+    np.testing.assert_allclose(world.object_poses()[0][:3, 3], [0.62, -0.05, top_z + 0.02], atol=1e-3)
+    world.close()

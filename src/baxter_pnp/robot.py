@@ -39,6 +39,7 @@ from baxter_pnp.ros_image import msg_to_bgr
 from baxter_pnp.transforms import from_xyz_quat, invert, matrix_to_pose_msg, to_xyz_quat
 
 JOINT_ANGLE_TOLERANCE = 0.008726646   # rad (0.5 deg): baxter_interface's "arrived" threshold
+CAMERA_INFO_GRACE = 1.0                # s (wall): frames may arrive before the first camera_info
 COMMAND_TIMEOUT = 0.2                 # s: the robot drops velocity commands older than this (SDK default)
 DEFAULT_SPEED_RATIO = 0.3             # the robot's position-mode speed ratio until set_speed_ratio is called
 COMMAND_RATE_HZ = 100.0               # joint command stream rate (as baxter_interface)
@@ -663,7 +664,8 @@ class HandCamera:
     Without ``/cameras/list`` (e.g. the Gazebo simulator) the camera is assumed to stream already.
     Frames in bgra8, bgr8, rgb8 or mono8 are converted to BGR and paired with the last
     ``camera_info``; a frame with another encoding, without a camera_info, or whose size does not
-    match is logged as an error and dropped.
+    match is logged as an error and dropped (frames in the first ``CAMERA_INFO_GRACE`` s after subscribing,
+    while the camera_info subscription connects, are dropped silently).
     """
 
     def __init__(self, side, resolution=(640, 400), fps=20, timeout=5.0, service_timeout=2.0):
@@ -677,6 +679,7 @@ class HandCamera:
         self.fps = fps
         self.service_timeout = service_timeout
         self.opened = self._open(fps, service_timeout)
+        self._subscribed_at = time.monotonic()
         self._info = CachedTopic(self.info_topic, CameraInfo, CameraModel.from_camera_info)
         self._frames = CachedTopic(self.image_topic, Image, self._frame, buff_size=1 << 24)
 
@@ -726,6 +729,9 @@ class HandCamera:
     def _frame(self, message):
         camera = self._info.value
         if camera is None:
+            if time.monotonic() - self._subscribed_at < CAMERA_INFO_GRACE:     # both topics are just connecting
+                rospy.logdebug(f'{self.name}: frame before the first camera_info: dropped')
+                return None
             raise ValueError(f'no valid camera_info on {self.info_topic} yet: frame dropped')
         if (message.width, message.height) != (camera.width, camera.height):
             raise ValueError(f'frame is {message.width}x{message.height} but camera_info is '

@@ -258,13 +258,35 @@ class ScriptRun:
         return _read(self.log_path)
 
 
-def run_script(master, script, args=(), timeout=120.0, log_path=None):
-    """Run an entry point ``script`` with ``args`` to completion, attached to ``master``.
+class ScriptProcess:
+    """A running entry-point script (see ``start_script``): ``process`` (its ``subprocess.Popen``, leader of
+    its own process group), ``wait`` for its ``ScriptRun``."""
+
+    def __init__(self, process, log_path, started):
+        self.process = process
+        self.log_path = log_path
+        self._started = started             # time.monotonic() at start
+
+    def wait(self, timeout):
+        """Wait for the exit, at most ``timeout`` wall seconds from now; then interrupt it (SIGINT, then
+        SIGKILL) and report ``timed_out``. Returns the ``ScriptRun``."""
+        try:
+            returncode, timed_out = self.process.wait(timeout=timeout), False
+        except subprocess.TimeoutExpired:
+            returncode, timed_out = stop_process_group(self.process), True
+        except BaseException:            # e.g. KeyboardInterrupt: never leave the script running
+            stop_process_group(self.process)
+            raise
+        return ScriptRun(returncode=returncode, timed_out=timed_out, wall_seconds=time.monotonic() - self._started,
+                         log_path=self.log_path)
+
+
+def start_script(master, script, args=(), log_path=None):
+    """Start an entry point ``script`` with ``args``, attached to ``master``; returns its ``ScriptProcess``.
 
     ``script`` is a path or a file name in the package's ``scripts/`` (e.g. ``'pick_square.py'``). It
     runs under the project's interpreter, in its own process group, with ``master``'s environment
-    (``None``: this process's environment); stdout and stderr go to ``log_path``. After ``timeout``
-    wall seconds it is interrupted (SIGINT, then SIGKILL) and the result says ``timed_out``.
+    (``None``: this process's environment); stdout and stderr go to ``log_path``.
     """
     path = script if os.path.sep in str(script) else os.path.join(SCRIPTS_DIR, script)
     env = dict(os.environ) if master is None else master.env()
@@ -278,12 +300,11 @@ def run_script(master, script, args=(), timeout=120.0, log_path=None):
     finally:
         if log is not subprocess.DEVNULL:
             log.close()
-    try:
-        returncode, timed_out = process.wait(timeout=timeout), False
-    except subprocess.TimeoutExpired:
-        returncode, timed_out = stop_process_group(process), True
-    except BaseException:            # e.g. KeyboardInterrupt: never leave the script running
-        stop_process_group(process)
-        raise
-    return ScriptRun(returncode=returncode, timed_out=timed_out, wall_seconds=time.monotonic() - started,
-                     log_path=log_path)
+    return ScriptProcess(process, log_path, started)
+
+
+def run_script(master, script, args=(), timeout=120.0, log_path=None):
+    """Run an entry point ``script`` with ``args`` to completion, attached to ``master`` (see
+    ``start_script``). After ``timeout`` wall seconds it is interrupted (SIGINT, then SIGKILL) and the
+    result says ``timed_out``."""
+    return start_script(master, script, args, log_path).wait(timeout)

@@ -38,7 +38,7 @@ import yaml
 from geometry_msgs.msg import Pose, PoseArray, TransformStamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState, Range
-from std_msgs.msg import Bool, Empty, Float64, Header
+from std_msgs.msg import Bool, Empty, Float64, Header, UInt32
 from tf2_msgs.msg import TFMessage
 
 from baxter_pnp import camera as camera_module
@@ -360,7 +360,10 @@ class FakeBaxterNode:
             'tf': rospy.Publisher('/tf', TFMessage, queue_size=10),
             'tf_static': rospy.Publisher('/tf_static', TFMessage, **latched),
             'object_poses': rospy.Publisher('~object_poses', PoseArray, queue_size=10),
+            'respawns': rospy.Publisher('~respawns', UInt32, **latched),
         }
+        self._respawns_published = None
+        self._publish_respawns()
         self._image_pubs = {}
 
         def queued(handler):
@@ -402,6 +405,7 @@ class FakeBaxterNode:
                 ready_pub = self._announce_ready()
             self.world.step()
             self._pub['clock'].publish(Clock(clock=rospy.Time.from_sec(self.world.time)))
+            self._publish_respawns()
             self.pacer.pace(self.world.time)
         rospy.loginfo('fake_baxter: stopped after %.1f s of simulated time (real-time factor %.2f)',
                       self.world.time, self.pacer.measured_factor())
@@ -583,6 +587,19 @@ class FakeBaxterNode:
         header.frame_id = BASE_FRAME
         self._pub['object_poses'].publish(PoseArray(
             header=header, poses=[matrix_to_pose_msg(T, Pose()) for T in self.world.object_poses()]))
+
+    def _publish_respawns(self):
+        """Latch the world's respawn count (ground truth, ``scene.respawn``) when it changed; log each respawn."""
+        count = self.world.respawns
+        if count == self._respawns_published:
+            return
+        if count:
+            respawn = self.world.scene.respawn
+            x, y, z = self.world.object_poses()[respawn.object][:3, 3]
+            rospy.loginfo(f'respawn {count}: objects[{respawn.object}] put back on the table at '
+                          f'({x:.3f}, {y:.3f}, {z:.3f}) m at {self.world.time:.2f} s')
+        self._respawns_published = count
+        self._pub['respawns'].publish(UInt32(count))
 
     # ------------------------------------------------------------------ cameras
     def _open_camera(self, request):

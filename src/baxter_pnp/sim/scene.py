@@ -8,16 +8,18 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
     start: down      # 'down' | 'angled' | 'neutral' (config/start_poses.yaml) | {left_s0: ..., ..., left_w2: ...}
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
     faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
+    respawn: {poses: [[0.62, 0.30, 0.5], [0.70, 0.18, -1.0]], delay: 2.0, object: 0}   # (x m, y m, yaw rad)
 
-``table``, ``start``, ``camera_error`` and ``faults`` (and each of their keys), an object's ``height`` and
-``yaw`` are optional (the values above are the defaults; no faults by default); an object's ``shape``,
-``side``, ``color`` and ``xy`` are required, and blocks may not overlap. Every problem raises
-``SceneError`` whose message starts with the key.
+``table``, ``start``, ``camera_error``, ``faults`` and ``respawn`` (and each of their keys, except
+``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the defaults; no
+faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required, and
+blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key.
 """
 import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
+from typing import Optional
 
 import cv2
 import numpy as np
@@ -31,6 +33,7 @@ from baxter_pnp.sim.faults import (NUDGE_DURATION, OCCLUDER_COLOR, Box, CameraFa
 from baxter_pnp.transforms import from_xyz_rpy
 
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
+RESPAWN_DELAY = 2.0             # s (simulated): default wait of a respawn (see Respawn)
 TIME_ORIGINS = ('boot', 'camera_open')     # what fault times count from (sim/faults.py)
 
 
@@ -87,14 +90,29 @@ class CameraError:
 
 
 @dataclass(frozen=True)
+class Respawn:
+    """The fake re-places block ``object`` (scene order) for endless pick-and-place runs (soak tests).
+
+    Once the block has been lifted (its underside at least 3 cm above the table top) and is then at rest on
+    the table again, released (every gripper open or touching it with neither finger) and with every
+    gripper tip at least 8 cm above its top, for ``delay`` seconds of simulated time, it is moved, at rest,
+    to the next of ``poses`` (x (m), y (m), yaw (rad) of its top-face centre, in ``base``), cycling through
+    them. ``sim.world.SimWorld`` acts it out (docs/fake_baxter.md "Scene file")."""
+    poses: tuple
+    delay: float = RESPAWN_DELAY
+    object: int = 0
+
+
+@dataclass(frozen=True)
 class Scene:
     """A validated scene. ``start`` is a start-pose name or a dict of the 7 left-arm joint angles (rad);
-    ``faults`` a ``sim.faults.Faults`` (none by default)."""
+    ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None."""
     table: Table = field(default_factory=Table)
     objects: tuple = ()
     start: object = 'down'
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
+    respawn: Optional[Respawn] = None
 
     def __post_init__(self):
         nudge = self.faults.nudge
@@ -104,15 +122,16 @@ class Scene:
     @classmethod
     def from_dict(cls, d):
         """Scene from a dictionary (parsed YAML); ``SceneError`` naming the bad key."""
-        d = _mapping(d, 'scene', {'table', 'objects', 'start', 'camera_error', 'faults'})
+        d = _mapping(d, 'scene', {'table', 'objects', 'start', 'camera_error', 'faults', 'respawn'})
         table = _table(d.get('table', {}))
         objects = d.get('objects', [])
         if not isinstance(objects, list):
             raise SceneError('objects: must be a list')
         parsed = tuple(_object(o, f'objects[{i}]', table) for i, o in enumerate(objects))
         _check_no_overlap(parsed)
+        respawn = None if d.get('respawn') is None else _respawn(d['respawn'], table, parsed)
         return cls(table, parsed, _start(d.get('start', 'down')), _camera_error(d.get('camera_error', {})),
-                   _faults(d.get('faults', {})))
+                   _faults(d.get('faults', {})), respawn)
 
     def with_faults(self, faults):
         """This scene with ``faults`` (a ``Faults``) instead of its own; ``SceneError`` if they do not fit it."""
@@ -220,14 +239,39 @@ def _object(d, key, table):
                        _number(d.get('yaw', 0.0), f'{key}.yaw'))
 
 
+def _overlap(a, b):
+    """True if the outlines of scene objects ``a`` and ``b`` on the table overlap (touching is fine)."""
+    area, _ = cv2.intersectConvexConvex(a.footprint().astype(np.float32), b.footprint().astype(np.float32))
+    return area > 1e-7                                         # m^2 (0.1 mm^2)
+
+
 def _check_no_overlap(objects):
     """SceneError naming the later of two blocks whose outlines on the table overlap (touching is fine)."""
-    footprints = [obj.footprint().astype(np.float32) for obj in objects]
     for j in range(len(objects)):
         for i in range(j):
-            area, _ = cv2.intersectConvexConvex(footprints[i], footprints[j])
-            if area > 1e-7:                                    # m^2 (0.1 mm^2)
+            if _overlap(objects[i], objects[j]):
                 raise SceneError(f'objects[{j}].xy: the block overlaps objects[{i}] on the table')
+
+
+def _respawn(d, table, objects):
+    """``Respawn`` of the ``respawn:`` mapping; every pose must put the block on the table, clear of the other
+    blocks' scene positions."""
+    d = _mapping(d, 'respawn', {'poses', 'delay', 'object'})
+    _required(d, 'respawn', ('poses',))
+    index = _count(d.get('object', 0), 'respawn.object')
+    if index >= len(objects):
+        raise SceneError(f'respawn.object: {index} but the scene has {len(objects)} object(s)')
+    if not isinstance(d['poses'], list) or not d['poses']:
+        raise SceneError('respawn.poses: must be a non-empty list of [x, y, yaw]')
+    poses = tuple(_vector(pose, f'respawn.poses[{k}]', 3) for k, pose in enumerate(d['poses']))
+    for k, (x, y, yaw) in enumerate(poses):
+        moved = dataclasses.replace(objects[index], xy=(x, y), yaw=yaw)
+        if not table.contains(moved.xy):
+            raise SceneError(f'respawn.poses[{k}]: {[x, y]} is not on the table')
+        for i, other in enumerate(objects):
+            if i != index and _overlap(moved, other):
+                raise SceneError(f'respawn.poses[{k}]: the block would overlap objects[{i}] on the table')
+    return Respawn(poses, _non_negative(d.get('delay', RESPAWN_DELAY), 'respawn.delay'), index)
 
 
 def _start(value):

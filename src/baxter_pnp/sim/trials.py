@@ -4,7 +4,10 @@
 pose (:func:`random_scene`), runs the unmodified pick application on each scene in each mode against a
 fresh fake Baxter (:func:`run_trial`), scores every run with the simulator's ground truth and prints a
 per-mode table (:func:`summarise`, :func:`format_table`); ``trials.csv``, ``summary.json`` and the plots go
-to ``--out``. See docs/trials.md.
+to ``--out``. ``--faults FILE`` and ``--distractor-same-colour`` run a batch under faults; every row records
+its conditions (:func:`condition`). ``--soak N`` runs N pick-and-place cycles in one application run against
+one fake that respawns the block (:func:`run_soak`), scoring each cycle with the ground truth and watching
+both processes' memory. See docs/trials.md.
 
 Ground truth (``/fake_baxter/object_poses``, the gripper pose of ``/robot/limb/left/endpoint_state``) is
 read here, by the runner only; the application never sees it. Scores (metres in, millimetres out):
@@ -36,7 +39,7 @@ from baxter_pnp import pick
 from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
-from baxter_pnp.sim.scene import Scene, Table
+from baxter_pnp.sim.scene import RESPAWN_DELAY, Scene, SceneError, Table, load_faults
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, pose_msg_to_matrix, transform_points
 
@@ -53,9 +56,9 @@ MODES = pick.MODES
 START_POSES = ('down', 'angled')
 PLACE_TOLERANCE = 0.01          # m: a placed block must end this close to the requested position
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
-              'app_success', 'failure_reason', 'verified', 'lifted', 'rise_mm', 'centring_mm', 'centring_x_mm',
-              'centring_y_mm', 'pre_close_offset_mm', 'place_error_mm', 'time_s', 'steps', 'grasp_attempts', 'final_error_mm_est',
-              'wall_s', 'returncode', 'timed_out', 'trial_dir')
+              'same_colour_distractor', 'faults', 'app_success', 'failure_reason', 'verified', 'lifted', 'rise_mm',
+              'centring_mm', 'centring_x_mm', 'centring_y_mm', 'pre_close_offset_mm', 'place_error_mm', 'time_s',
+              'steps', 'grasp_attempts', 'final_error_mm_est', 'wall_s', 'returncode', 'timed_out', 'trial_dir')
 
 
 # ============================================================================================ scenes (pure)
@@ -147,17 +150,17 @@ def _view_footprint(T_base_camera, camera, plane_z):
     return xy.min(axis=0), xy.max(axis=0)
 
 
-def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, margin_px=20.0, table=None,
-                 max_attempts=5000):
-    """A random scene dict (``sim/scene.py`` schema) with one green square the application can pick.
+def draw_placement(rng, shape, start_pose, table=None, side=None, size_range=(0.03, 0.05), require_pickable=False,
+                   avoid=(), margin_px=20.0, max_attempts=5000):
+    """(side (m), yaw (rad), xy (2,) m in base) of a random block of ``shape`` standing on the table.
 
-    The target: side uniform in ``size_range`` (m), yaw uniform in [-pi, pi), position uniform over the
-    part of the table where its whole top face is seen from ``start_pose`` with ``margin_px`` pixels to
-    spare, from the image border and from the open gripper's fingers (published camera model at 640x400,
-    forward kinematics of the URDF, :func:`hand_clearance_px`), and the arm can reach the hover, grasp and
-    lift poses. ``distractors`` other blocks (random shape and colour, never a green
-    square, same sizes, also in view) stand at least 8 cm from every other block. ``rng`` is a
-    ``numpy.random.Generator``. Raises RuntimeError if no placement is found in ``max_attempts`` draws.
+    ``side`` uniform in ``size_range`` unless given, yaw uniform in [-pi, pi), position uniform over the
+    part of the table where the block's whole top face is seen from ``start_pose`` with ``margin_px`` pixels
+    to spare, from the image border and from the open gripper's fingers (published camera model at 640x400,
+    forward kinematics of the URDF, :func:`hand_clearance_px`); with ``require_pickable``, the arm must also
+    reach the hover, grasp and lift poses (:func:`pickable`). ``avoid``: [(xy (m), distance (m))], positions
+    the block's centre must stay at least that far from. ``rng`` is a ``numpy.random.Generator``. Raises
+    RuntimeError if no placement is found in ``max_attempts`` draws.
     """
     table = table or Table()
     T_base_camera, _, camera, _ = start_view(start_pose)
@@ -165,41 +168,75 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, margin
     low, high = _view_footprint(T_base_camera, camera, table.top_z + BLOCK_HEIGHT)
     low = np.maximum(low, np.subtract(table.center, np.divide(table.size, 2)))
     high = np.minimum(high, np.add(table.center, np.divide(table.size, 2)))
+    for _ in range(max_attempts):
+        block_side = float(rng.uniform(*size_range)) if side is None else side
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        xy = rng.uniform(low, high)
+        model = model_for(shape, block_side, BLOCK_HEIGHT)
+        T_base_block = block_pose(xy, yaw, table.top_z)
+        if any(np.linalg.norm(xy - np.asarray(other)) < distance for other, distance in avoid):
+            continue
+        if not (on_table(T_base_block, model, table)
+                and top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px, clearance)):
+            continue
+        if require_pickable and not pickable(T_base_block, block_side, start_pose):
+            continue
+        return block_side, yaw, xy
+    raise RuntimeError(f'no {shape} placement in view from {start_pose!r} after {max_attempts} draws')
 
-    def draw(shape, require_pickable, placed):
-        for _ in range(max_attempts):
-            side = float(rng.uniform(*size_range))
-            yaw = float(rng.uniform(-math.pi, math.pi))
-            xy = rng.uniform(low, high)
-            model = model_for(shape, side, BLOCK_HEIGHT)
-            T_base_block = block_pose(xy, yaw, table.top_z)
-            if any(np.linalg.norm(xy - other) < DISTRACTOR_MIN_DISTANCE for other in placed):
-                continue
-            if not (on_table(T_base_block, model, table)
-                    and top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px, clearance)):
-                continue
-            if require_pickable and not pickable(T_base_block, side, start_pose):
-                continue
-            return side, yaw, xy
-        raise RuntimeError(f'no {shape} placement in view from {start_pose!r} after {max_attempts} draws')
 
-    def block(shape, colour, side, yaw, xy):
-        return {'shape': shape, 'side': round(side, 5), 'height': BLOCK_HEIGHT, 'color': list(COLOURS_RGB[colour]),
-                'xy': [round(float(xy[0]), 5), round(float(xy[1]), 5)], 'yaw': round(yaw, 5)}
+def _block(shape, colour, side, yaw, xy):
+    """Scene-file entry of a generated block (rounded to 0.01 mm and 0.01 mrad)."""
+    return {'shape': shape, 'side': round(side, 5), 'height': BLOCK_HEIGHT, 'color': list(COLOURS_RGB[colour]),
+            'xy': [round(float(xy[0]), 5), round(float(xy[1]), 5)], 'yaw': round(yaw, 5)}
 
-    side, yaw, xy = draw(TARGET[0], True, [])
-    objects, placed = [block(*TARGET, side, yaw, xy)], [xy]
-    others = [(s, c) for s in SHAPES for c in COLOURS_RGB if (s, c) != TARGET]
-    for _ in range(distractors):
-        shape, colour = others[rng.integers(len(others))]
-        side, yaw, xy = draw(shape, False, placed)
-        objects.append(block(shape, colour, side, yaw, xy))
-        placed.append(xy)
+
+def _scene_dict(objects, start_pose, table, **extra):
+    """A validated scene dict (``sim/scene.py`` schema) of generated ``objects``; ``extra``: more top-level keys."""
     scene = {'table': {'top_z': table.top_z, 'center': list(table.center), 'size': list(table.size)},
              'objects': objects, 'start': start_pose,
-             'camera_error': {'xyz': [0, 0, 0], 'rpy': [0, 0, 0], 'focal_scale': 1.0}}
+             'camera_error': {'xyz': [0, 0, 0], 'rpy': [0, 0, 0], 'focal_scale': 1.0}, **extra}
     Scene.from_dict(scene)          # validates (SceneError on a bug here)
     return scene
+
+
+def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_colour_distractor=False,
+                 margin_px=20.0, table=None, faults=None):
+    """A random scene dict (``sim/scene.py`` schema) with one green square the application can pick.
+
+    The target (``objects[0]``): drawn by :func:`draw_placement` (whole top face in view from
+    ``start_pose``, pickable). ``distractors`` other blocks (random shape and colour, never a green
+    square, same sizes, also in view) stand at least 8 cm from every other block; with
+    ``same_colour_distractor`` one more block has the target's colour but another shape (triangle,
+    pentagon or hexagon; the last object). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
+    schema), none if None. ``rng`` is a ``numpy.random.Generator``.
+    """
+    table = table or Table()
+    objects, placed = [], []
+
+    def add(shape, colour, require_pickable=False):
+        side, yaw, xy = draw_placement(rng, shape, start_pose, table, size_range=size_range, margin_px=margin_px,
+                                       require_pickable=require_pickable,
+                                       avoid=[(other, DISTRACTOR_MIN_DISTANCE) for other in placed])
+        objects.append(_block(shape, colour, side, yaw, xy))
+        placed.append(xy)
+
+    add(*TARGET, require_pickable=True)
+    others = [(s, c) for s in SHAPES for c in COLOURS_RGB if (s, c) != TARGET]
+    for _ in range(distractors):
+        add(*others[rng.integers(len(others))])
+    if same_colour_distractor:
+        same_colour = [s for s in SHAPES if s != TARGET[0]]
+        add(same_colour[rng.integers(len(same_colour))], TARGET[1])
+    return _scene_dict(objects, start_pose, table, **({} if faults is None else {'faults': faults}))
+
+
+def load_faults_mapping(path):
+    """The ``faults:`` mapping of a YAML file (the format of ``fake_baxter.py --faults``: a file holding a
+    ``faults:`` key, ``sim/faults.py`` schema), validated; ``SceneError`` naming the path and the key."""
+    load_faults(path)
+    with open(path) as f:
+        return yaml.safe_load(f).get('faults') or {}
 
 
 # ============================================================================================ scoring (pure)
@@ -244,21 +281,30 @@ def failure_label(row):
     return row['failure_reason'] or 'unknown'
 
 
+def condition(row):
+    """The conditions a row ran under, as one label: its faults (``Faults.summary()``, ``none`` for a clean
+    run; rows of CSVs written before the column count as ``none``) and its distractors, e.g.
+    ``faults: camera.drop_probability=0.2, camera.latency=0.1; distractors: 1 (1 of the target's colour)``."""
+    same = ' (1 of the target\'s colour)' if row.get('same_colour_distractor') else ''
+    return f"faults: {row.get('faults') or 'none'}; distractors: {row.get('distractors') or 0}{same}"
+
+
 def _percentile(values, q):
     return float(np.percentile(values, q)) if len(values) else None
 
 
-def summarise(rows, by_start_pose=False):
-    """Statistics per mode (or per mode and start pose): dict 'mode' (or 'mode start_pose') -> {trials,
-    verified, success_pct, centring_median_mm, centring_p90_mm, pre_close_median_mm, time_median_s,
-    time_p90_s, wall_median_s, failures {label: count}}.
+def summarise(rows, by_start_pose=False, by_condition=False):
+    """Statistics per mode (and start pose, and :func:`condition`, if asked): dict 'mode' (or 'mode
+    start_pose', 'mode [condition]') -> {trials, verified, success_pct, centring_median_mm, centring_p90_mm,
+    pre_close_median_mm, time_median_s, time_p90_s, wall_median_s, failures {label: count}}.
 
     Centring and time statistics are over verified picks; time = the application's ``time_s`` (robot
     time from the first look to the verified grasp).
     """
     groups = {}
     for row in sorted(rows, key=lambda r: (MODES.index(r['mode']), START_POSES.index(r['start_pose']))):
-        key = f"{row['mode']} {row['start_pose']}" if by_start_pose else row['mode']
+        key = ' '.join([row['mode']] + ([row['start_pose']] if by_start_pose else [])
+                       + ([f'[{condition(row)}]'] if by_condition else []))
         groups.setdefault(key, []).append(row)
     summary = {}
     for key, mine in groups.items():
@@ -373,23 +419,30 @@ class GroundTruthMonitor:
     """Records the simulator's ground truth during a trial (runner only; needs this process's rospy node).
 
     On every ``/fake_baxter/object_poses`` message (30 Hz simulated) it stores a ``GroundTruthSample``
-    (the first object's pose, the latest ``/robot/limb/left/endpoint_state`` pose and gripper opening).
+    (the first object's pose, the latest ``/robot/limb/left/endpoint_state`` pose and gripper opening);
+    ``respawns`` is the latest ``/fake_baxter/respawns`` count (scenes with a ``respawn:`` key).
     """
 
     def __init__(self):
         import rospy
         from geometry_msgs.msg import PoseArray
+        from std_msgs.msg import UInt32
 
         from baxter_pnp.msgs import msg
         self._lock = threading.Lock()
         self.samples = []            # GroundTruthSample, in arrival order
         self._gripper_pose = None
         self._gripper_position = None
+        self.respawns = 0
         self._subscribers = [
+            rospy.Subscriber('/fake_baxter/respawns', UInt32, self._on_respawns, queue_size=1),
             rospy.Subscriber('/fake_baxter/object_poses', PoseArray, self._on_objects, queue_size=10),
             rospy.Subscriber(f'/robot/limb/{SIDE}/endpoint_state', msg.EndpointState, self._on_endpoint, queue_size=1),
             rospy.Subscriber(f'/robot/end_effector/{SIDE}_gripper/state', msg.EndEffectorState, self._on_gripper,
                              queue_size=1)]
+
+    def _on_respawns(self, message):
+        self.respawns = message.data
 
     def _on_endpoint(self, message):
         with self._lock:
@@ -412,6 +465,11 @@ class GroundTruthMonitor:
         with self._lock:
             return len(self.samples)
 
+    def snapshot(self):
+        """A copy of the sample list."""
+        with self._lock:
+            return list(self.samples)
+
     def wait_for_samples(self, count, timeout=10.0):
         """The sample list once it holds more than ``count`` samples (wall ``timeout`` s), else RuntimeError."""
         deadline = time.monotonic() + timeout
@@ -419,8 +477,7 @@ class GroundTruthMonitor:
             if time.monotonic() > deadline:
                 raise RuntimeError('no ground truth from /fake_baxter/object_poses')
             time.sleep(0.02)
-        with self._lock:
-            return list(self.samples)
+        return self.snapshot()
 
     def close(self):
         for subscriber in self._subscribers:
@@ -496,6 +553,9 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
     row = {'mode': mode, 'start_pose': start_pose, 'trial': trial, 'seed': seed,
            'side_mm': round(1000 * target['side'], 2), 'yaw_deg': round(math.degrees(target['yaw']), 2),
            'x_m': target['xy'][0], 'y_m': target['xy'][1], 'distractors': len(scene['objects']) - 1,
+           'same_colour_distractor': any(o['color'] == target['color'] and o['shape'] != target['shape']
+                                         for o in scene['objects'][1:]),
+           'faults': Scene.from_dict(scene).faults.summary(),
            'app_success': None if result is None else bool(result['success']),
            'failure_reason': error if result is None else result['failure_reason'],
            'time_s': None if result is None else result['time_s'],
@@ -523,8 +583,9 @@ def _csv_value(value):
 
 
 FIELD_TYPES = {'trial': int, 'seed': int, 'steps': int, 'grasp_attempts': int, 'returncode': int, 'distractors': int,
-               'mode': str, 'start_pose': str, 'failure_reason': str, 'trial_dir': str,
-               'app_success': 'bool', 'verified': 'bool', 'lifted': 'bool', 'timed_out': 'bool'}
+               'mode': str, 'start_pose': str, 'failure_reason': str, 'trial_dir': str, 'faults': str,
+               'same_colour_distractor': 'bool', 'app_success': 'bool', 'verified': 'bool', 'lifted': 'bool',
+               'timed_out': 'bool'}
 
 
 def read_csv(path):
@@ -548,27 +609,376 @@ def write_csv(rows, path):
             writer.writerow({k: _csv_value(row.get(k)) for k in CSV_FIELDS})
 
 
+# ============================================================================================ soak
+
+SOAK_PLACE_XY = (0.62, 0.12)      # m (base): default place position of a soak (as in the place trials)
+SOAK_PLACE_CLEARANCE = 0.10       # m: every soak pose's centre stays this far from the place position
+SOAK_POLL = 0.25                  # wall s between looks at the application's result JSON
+SOAK_MEMORY_INTERVAL = 10.0       # wall s between the periodic memory samples
+SOAK_FIELDS = ('cycle', 'app_success', 'failure_reason', 'lifted', 'verified', 'time_s', 'total_time_s', 'steps',
+               'grasp_attempts', 'final_error_mm_est', 'place_error_mm_est', 'end_sim_s', 'cycle_sim_s', 'end_wall_s',
+               'respawns', 'app_rss_mib', 'fake_rss_mib')
+SOAK_MEMORY_FIELDS = ('wall_s', 'sim_s', 'cycles_done', 'app_rss_mib', 'fake_rss_mib')
+
+
+def soak_poses(rng, start_pose, count, place_xy, table=None, size_range=(0.03, 0.05)):
+    """(side (m), [(x (m), y (m), yaw (rad))] * ``count``): one green square's side and ``count`` poses of it
+    on the table, each drawn by :func:`draw_placement` (whole top face in view from ``start_pose``,
+    pickable) with its centre at least ``SOAK_PLACE_CLEARANCE`` from ``place_xy`` (m, base)."""
+    side, poses = None, []
+    for _ in range(count):
+        side, yaw, xy = draw_placement(rng, TARGET[0], start_pose, table, side=side, size_range=size_range,
+                                       require_pickable=True, avoid=[(place_xy, SOAK_PLACE_CLEARANCE)])
+        poses.append((round(float(xy[0]), 5), round(float(xy[1]), 5), round(yaw, 5)))
+    return side, poses
+
+
+def soak_scene(side, poses, start_pose, table=None, faults=None, respawn_delay=RESPAWN_DELAY):
+    """Scene dict of a soak: the green square of ``side`` (m) at ``poses[0]``, respawned by the fake at
+    ``poses[1:]`` in turn (``respawn:`` key, ``respawn_delay`` s) after each pick and place; ``faults``: the
+    ``faults:`` mapping or None. Needs at least two poses."""
+    if len(poses) < 2:
+        raise ValueError('a soak needs at least two poses (the first, then the respawns)')
+    table = table or Table()
+    x, y, yaw = poses[0]
+    extra = {'respawn': {'poses': [list(pose) for pose in poses[1:]], 'delay': respawn_delay, 'object': 0}}
+    if faults is not None:
+        extra['faults'] = faults
+    return _scene_dict([_block(*TARGET, side, yaw, (x, y))], start_pose, table, **extra)
+
+
+def vm_rss_mib(status_text):
+    """Resident memory (MiB) from the text of a ``/proc/PID/status`` file (its ``VmRSS: N kB`` line), or None
+    if it has none (e.g. a zombie)."""
+    for line in status_text.splitlines():
+        if line.startswith('VmRSS:'):
+            value, unit = line.split()[1:3]
+            if unit != 'kB':
+                raise ValueError(f'unexpected VmRSS unit {unit!r}')
+            return int(value) / 1024.0
+    return None
+
+
+def _read_proc(proc, pid, name):
+    try:
+        with open(os.path.join(proc, str(pid), name)) as f:
+            return f.read()
+    except OSError:              # the process is gone (or not ours to read)
+        return None
+
+
+def process_tree(root, proc='/proc'):
+    """PIDs of process ``root`` and all its descendants, from ``proc``'s ``PID/stat`` files (parent = field 4)."""
+    children = {}
+    for entry in os.listdir(proc):
+        stat = _read_proc(proc, entry, 'stat') if entry.isdigit() else None
+        if stat:
+            children.setdefault(int(stat.rsplit(')', 1)[1].split()[1]), []).append(int(entry))
+    tree, todo = [], [root]
+    while todo:
+        pid = todo.pop()
+        tree.append(pid)
+        todo += children.get(pid, [])
+    return tree
+
+
+def python_rss_mib(root, proc='/proc'):
+    """(pid, resident MiB) of the largest Python process (``comm`` starting with ``python``) among ``root``
+    and its descendants: the launched process may be a wrapper (a shell, ``rosrun``) around the interpreter,
+    or the interpreter itself (which may re-exec itself under the venv, keeping its PID). (None, None) when
+    there is none (yet, or any more)."""
+    best = (None, None)
+    for pid in process_tree(root, proc):
+        comm, status = _read_proc(proc, pid, 'comm'), _read_proc(proc, pid, 'status')
+        rss = vm_rss_mib(status) if comm and comm.startswith('python') and status else None
+        if rss is not None and (best[1] is None or rss > best[1]):
+            best = (pid, rss)
+    return best
+
+
+def lift_times(samples, rest_z, threshold=LIFT_THRESHOLD):
+    """Simulated times (s) at which the target block started a lift: its top face rose to ``threshold`` (m)
+    above ``rest_z`` (its top face's height at rest on the table) from below; ``samples``:
+    ``GroundTruthSample``s in time order."""
+    times, up = [], False
+    for sample in samples:
+        rising = sample.T_base_block[2, 3] - rest_z >= threshold
+        if rising and not up:
+            times.append(sample.stamp)
+        up = rising
+    return times
+
+
+def score_cycles(results, ends, lifts, start):
+    """Per-cycle rows of a soak: the application's result of each finished cycle (``results``, in order), the
+    simulated time at which the runner saw each one finished (``ends``, s), the lift start times (``lifts``,
+    s, :func:`lift_times`) and the time the application started (``start``, s). Cycle k spans (end of k - 1,
+    end of k]; it is *lifted* if a lift started then, *verified* if the application reports success and it
+    is lifted. ``cycle_sim_s`` is its length."""
+    rows, previous = [], start
+    for k, (result, end) in enumerate(zip(results, ends)):
+        lifted = any(previous < t <= end for t in lifts)
+        rows.append({'cycle': k + 1, 'app_success': bool(result.get('success')),
+                     'failure_reason': result.get('failure_reason'), 'lifted': lifted,
+                     'verified': bool(result.get('success')) and lifted, 'end_sim_s': end,
+                     'cycle_sim_s': end - previous,
+                     **{key: result.get(key) for key in ('time_s', 'total_time_s', 'steps', 'grasp_attempts',
+                                                         'final_error_mm_est', 'place_error_mm_est')}})
+        previous = end
+    return rows
+
+
+def _memory_change(rows, key):
+    """{start_mib, start_cycle, end_mib, end_cycle, growth_pct} of the first and last cycle rows with a
+    ``key`` memory reading, or None without any."""
+    measured = [row for row in rows if row.get(key) is not None]
+    if not measured:
+        return None
+    first, last = measured[0], measured[-1]
+    return {'start_mib': first[key], 'start_cycle': first['cycle'], 'end_mib': last[key], 'end_cycle': last['cycle'],
+            'growth_pct': 100.0 * (last[key] - first[key]) / first[key]}
+
+
+def summarise_soak(rows, cycles):
+    """Statistics of a soak's cycle rows (:func:`score_cycles` plus memory columns) out of ``cycles`` asked:
+    success counts and percentages (over ``cycles``: an unfinished cycle is a failure), failures by label,
+    time to grasp (the application's ``time_s``, verified cycles) and cycle length (simulated s, all
+    finished cycles) median and p90, memory of the application and the fake (MiB) at the first and last
+    cycle end measured and its growth (%)."""
+    verified = [r for r in rows if r['verified']]
+    failures = {}
+    for row in rows:
+        if not row['verified']:
+            label = row['failure_reason'] or ('not_lifted' if row['app_success'] else 'unknown')
+            failures[label] = failures.get(label, 0) + 1
+    if cycles > len(rows):
+        failures['not_finished'] = cycles - len(rows)
+    grasp_times = [r['time_s'] for r in verified if r['time_s'] is not None]
+    lengths = [r['cycle_sim_s'] for r in rows]
+    return {'cycles': cycles, 'finished': len(rows), 'app_successes': sum(r['app_success'] for r in rows),
+            'verified': len(verified), 'app_success_pct': 100.0 * sum(r['app_success'] for r in rows) / cycles,
+            'verified_pct': 100.0 * len(verified) / cycles, 'failures': failures,
+            'time_to_grasp_median_s': _percentile(grasp_times, 50), 'time_to_grasp_p90_s': _percentile(grasp_times, 90),
+            'cycle_median_s': _percentile(lengths, 50), 'cycle_p90_s': _percentile(lengths, 90),
+            'app_memory': _memory_change(rows, 'app_rss_mib'), 'fake_memory': _memory_change(rows, 'fake_rss_mib')}
+
+
+def format_soak(summary):
+    """A ``summarise_soak`` result as a few lines of text."""
+    def number(value, digits=1):
+        return 'n/a' if value is None else f'{value:.{digits}f}'
+
+    def memory(change):
+        if change is None:
+            return 'n/a'
+        return (f"{change['start_mib']:.0f} MiB after cycle {change['start_cycle']} -> {change['end_mib']:.0f} MiB "
+                f"after cycle {change['end_cycle']} ({change['growth_pct']:+.1f} %)")
+    s = summary
+    failures = ', '.join(f'{label} {count}' for label, count in sorted(s['failures'].items())) or 'none'
+    return '\n'.join([
+        f"cycles: {s['finished']}/{s['cycles']} finished; app-reported successes {s['app_successes']}/{s['cycles']} "
+        f"({s['app_success_pct']:.0f} %), verified by ground truth {s['verified']}/{s['cycles']} "
+        f"({s['verified_pct']:.0f} %); failures: {failures}",
+        f"time to grasp (verified, s sim): median {number(s['time_to_grasp_median_s'])}, "
+        f"p90 {number(s['time_to_grasp_p90_s'])}; cycle (s sim): median {number(s['cycle_median_s'])}, "
+        f"p90 {number(s['cycle_p90_s'])}",
+        f"memory (VmRSS) app: {memory(s['app_memory'])}; fake: {memory(s['fake_memory'])}"])
+
+
+def plot_soak_memory(rows, series, path):
+    """``path`` (PNG): resident memory (MiB) of the application and the fake at each cycle end, and the
+    periodic samples against wall time."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    figure, (by_cycle, by_time) = plt.subplots(2, 1, figsize=(7, 6))
+    for key, label in (('app_rss_mib', 'pick_square.py'), ('fake_rss_mib', 'fake_baxter.py')):
+        measured = [r for r in rows if r.get(key) is not None]
+        by_cycle.plot([r['cycle'] for r in measured], [r[key] for r in measured], 'o-', label=label)
+        sampled = [m for m in series if m[key] is not None]
+        by_time.plot([m['wall_s'] / 60 for m in sampled], [m[key] for m in sampled], '-', label=label)
+    by_cycle.set_xlabel('cycle')
+    by_cycle.set_ylabel('VmRSS at the cycle end (MiB)')
+    by_cycle.legend(fontsize=8)
+    by_time.set_xlabel('wall time (min)')
+    by_time.set_ylabel('VmRSS (MiB)')
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def _write_rows(rows, fields, path):
+    with open(path, 'w', newline='') as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _csv_value(row.get(k)) for k in fields})
+
+
+class SoakWatcher:
+    """Watches a running soak from a thread (runner only; needs this process's rospy node for ``/clock``).
+
+    Every ``SOAK_POLL`` wall seconds it reads the application's result JSON; when more cycles are listed it
+    records, for each new one, the simulated time, the wall time, the fake's respawn count and the resident
+    memory of the application's and the fake's Python processes (``ends``). Every ``SOAK_MEMORY_INTERVAL``
+    it appends a memory sample to ``series`` (and to the CSV at ``memory_csv``).
+    """
+
+    def __init__(self, result_path, app_pid, fake_pid, monitor, memory_csv):
+        self.result_path, self.app_pid, self.fake_pid, self.monitor = result_path, app_pid, fake_pid, monitor
+        self.memory_csv = memory_csv
+        self.ends, self.series = [], []
+        self._started = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self):
+        with open(self.memory_csv, 'w', newline='') as f:
+            csv.writer(f).writerow(SOAK_MEMORY_FIELDS)
+        self._thread.start()
+        return self
+
+    def stop(self):
+        """Stop watching, after one last look at the result JSON."""
+        self._stop.set()
+        self._thread.join()
+        self.poll()
+
+    def results(self):
+        """The per-cycle result dicts the application has written so far ([] if none yet or unreadable)."""
+        try:
+            with open(self.result_path) as f:
+                return json.load(f).get('cycles', [])
+        except (OSError, ValueError):          # not written yet, or caught while being rewritten
+            return []
+
+    def memory(self):
+        """{app_rss_mib, fake_rss_mib} now (None for a process that is gone)."""
+        return {'app_rss_mib': python_rss_mib(self.app_pid)[1], 'fake_rss_mib': python_rss_mib(self.fake_pid)[1]}
+
+    def poll(self):
+        import rospy
+        finished = len(self.results())
+        if finished > len(self.ends):
+            now = {'end_sim_s': rospy.get_time(), 'end_wall_s': time.monotonic() - self._started,
+                   'respawns': self.monitor.respawns, **self.memory()}
+            self.ends += [now] * (finished - len(self.ends))
+
+    def _run(self):
+        import rospy
+        next_sample = 0.0
+        while not self._stop.wait(SOAK_POLL):
+            self.poll()
+            wall = time.monotonic() - self._started
+            if wall >= next_sample:
+                sample = {'wall_s': round(wall, 1), 'sim_s': round(rospy.get_time(), 2), 'cycles_done': len(self.ends),
+                          **self.memory()}
+                self.series.append(sample)
+                with open(self.memory_csv, 'a', newline='') as f:
+                    csv.writer(f).writerow([_csv_value(sample[k]) for k in SOAK_MEMORY_FIELDS])
+                next_sample = wall + SOAK_MEMORY_INTERVAL
+
+
+def run_soak(master, cycles, mode, start_pose, place_xy, out, seed=0, step_fraction=0.35, timeout_per_cycle=300.0,
+             faults=None):
+    """``cycles`` pick-and-place cycles in one ``pick_square.py --cycles`` run against one fake Baxter that
+    respawns the block (:func:`soak_scene`), scored per cycle with the ground truth; returns (cycle rows,
+    summary dict). Writes ``scene.yaml``, ``fake_baxter.log``, ``pick.log``, ``result.json`` (the
+    application's), ``ground_truth.csv``, ``soak_memory.csv`` (periodic memory samples), ``soak.csv`` (one
+    row per cycle) and ``soak_memory.png`` to ``out``. The run is interrupted after ``timeout_per_cycle`` x
+    ``cycles`` wall seconds. This process's rospy node must already run on ``master`` (see :func:`main`).
+    """
+    import rospy
+    from baxter_pnp.sim.launcher import FakeBaxterProcess, start_script
+    os.makedirs(out, exist_ok=True)
+    side, poses = soak_poses(np.random.default_rng(seed), start_pose, cycles, place_xy)
+    scene = soak_scene(side, poses, start_pose, faults=faults)
+    scene_path, result_path = os.path.join(out, 'scene.yaml'), os.path.join(out, 'result.json')
+    with open(scene_path, 'w') as f:
+        yaml.safe_dump(scene, f, default_flow_style=None, sort_keys=False)
+    if os.path.exists(result_path):
+        os.remove(result_path)
+    monitor = GroundTruthMonitor()
+    fake = FakeBaxterProcess(master, ['--scene', scene_path, '--real-time-factor', '0', '--seed', seed],
+                             log_path=os.path.join(out, 'fake_baxter.log'))
+    run, watcher = None, None
+    try:
+        fake.start()
+        started = rospy.get_time()
+        app = start_script(master, 'pick_square.py',
+                           ['--cycles', cycles, '--place', '%g,%g' % tuple(place_xy), '--mode', mode,
+                            '--start-pose', start_pose, '--side-length', side, '--step-fraction', step_fraction,
+                            '--result-json', result_path, '--output-dir', os.path.join(out, 'app')],
+                           log_path=os.path.join(out, 'pick.log'))
+        watcher = SoakWatcher(result_path, app.process.pid, fake.process.pid, monitor,
+                              os.path.join(out, 'soak_memory.csv')).start()
+        run = app.wait(timeout_per_cycle * cycles)
+    finally:
+        if watcher is not None:
+            watcher.stop()
+        samples = monitor.snapshot()
+        monitor.close()
+        fake.stop()
+    results = watcher.results()
+    ends = watcher.ends[:len(results)]
+    rows = score_cycles(results, [end['end_sim_s'] for end in ends],
+                        lift_times(samples, scene['table']['top_z'] + BLOCK_HEIGHT), started)
+    for row, end in zip(rows, ends):
+        row.update({k: end[k] for k in ('end_wall_s', 'respawns', 'app_rss_mib', 'fake_rss_mib')})
+    if samples:
+        write_ground_truth(samples, os.path.join(out, 'ground_truth.csv'))
+    _write_rows(rows, SOAK_FIELDS, os.path.join(out, 'soak.csv'))
+    plot_soak_memory(rows, watcher.series, os.path.join(out, 'soak_memory.png'))
+    summary = summarise_soak(rows, cycles)
+    summary.update({'returncode': run.returncode, 'timed_out': run.timed_out, 'wall_s': round(run.wall_seconds, 1),
+                    'respawns': monitor.respawns, 'side_m': side, 'poses': poses})
+    return rows, summary
+
+
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='run_trials.py', description=(
         'Batch pick trials on the fake Baxter: N random scenes per start pose, each picked in each mode, scored '
-        'with the ground truth (docs/trials.md).'))
+        'with the ground truth; or a soak: N pick-and-place cycles in one run (docs/trials.md).'))
     parser.add_argument('--trials', type=int, default=10, help='random scenes per start pose (default %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the scenes and image noise (default %(default)s)')
-    parser.add_argument('--mode', choices=MODES + ('all',), default='all')
-    parser.add_argument('--start-pose', choices=START_POSES + ('both',), default='both')
+    parser.add_argument('--mode', choices=MODES + ('all',), help='default: all (soak: pbvs)')
+    parser.add_argument('--start-pose', choices=START_POSES + ('both',), help='default: both (soak: down)')
     parser.add_argument('--step-fraction', type=float, default=0.35, help='PBVS step fraction (default %(default)s)')
     parser.add_argument('--distractors', type=int, default=0, help='other blocks per scene (default %(default)s)')
-    parser.add_argument('--timeout', type=float, default=300.0, help='wall seconds per trial (default %(default)s)')
+    parser.add_argument('--distractor-same-colour', action='store_true',
+                        help="one more block per scene of the target's colour but not a square")
+    parser.add_argument('--faults', metavar='FILE', help="YAML file with a 'faults:' key (as fake_baxter.py "
+                        "--faults, docs/fake_baxter.md): the faults of every scene")
+    parser.add_argument('--timeout', type=float, default=300.0,
+                        help='wall seconds per trial, or per soak cycle (default %(default)s)')
     parser.add_argument('--place', metavar='X,Y', type=lambda text: [float(v) for v in text.split(',')],
-                        help='also place each block at this table position (base, m); scored by where it ends')
+                        help='also place each block at this table position (base, m); scored by where it ends '
+                             '(soak: default %g,%g)' % SOAK_PLACE_XY)
+    parser.add_argument('--soak', type=int, metavar='N', help='instead of trials: N pick-and-place cycles in one '
+                        'run of pick_square.py --cycles N against one fake that respawns the block')
     parser.add_argument('--out', default='trials_out', help='output directory (default %(default)s)')
     parser.add_argument('--from-csv', nargs='+', metavar='CSV', help='run nothing: merge these trials.csv files '
                         'into --out and report them (tables, summary.json, plots)')
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.soak is not None:
+        if args.soak < 2:
+            parser.error('--soak needs at least 2 cycles')
+        if args.mode == 'all' or args.start_pose == 'both':
+            parser.error('--soak runs one mode from one start pose')
+        if args.distractors or args.distractor_same_colour or args.from_csv:
+            parser.error('--soak takes no distractors and no --from-csv')
+        args.mode, args.start_pose = args.mode or 'pbvs', args.start_pose or 'down'
+        args.place = args.place or list(SOAK_PLACE_XY)
+    else:
+        args.mode, args.start_pose = args.mode or 'all', args.start_pose or 'both'
+    if args.place is not None and len(args.place) != 2:
+        parser.error('--place: expected X,Y in metres')
+    return args
 
 
 def main(argv=None):
-    """Entry point of ``scripts/run_trials.py``; returns the exit code (0 when every trial ran)."""
+    """Entry point of ``scripts/run_trials.py``; returns the exit code (0 when every trial ran; a soak: the
+    application's exit code, 0 when every cycle succeeded; 2 for a bad --faults file)."""
     import rospy
     from baxter_pnp.sim.launcher import RosMaster
     argv = sys.argv[1:] if argv is None else argv
@@ -581,15 +991,23 @@ def main(argv=None):
         write_csv(rows, os.path.join(out, 'trials.csv'))
         report(rows, out, command)
         return 0
-    modes = MODES if args.mode == 'all' else (args.mode,)
-    start_poses = START_POSES if args.start_pose == 'both' else (args.start_pose,)
+    try:
+        faults = None if args.faults is None else load_faults_mapping(args.faults)
+    except (SceneError, OSError, yaml.YAMLError) as error:
+        print(f'run_trials.py: error: --faults: {error}', file=sys.stderr)
+        return 2
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
+    if args.soak is not None:
+        return soak_main(args, faults, out, command)
+    modes = MODES if args.mode == 'all' else (args.mode,)
+    start_poses = START_POSES if args.start_pose == 'both' else (args.start_pose,)
     plan = []
     for start_pose in start_poses:
         for trial in range(args.trials):
             scene_seed = args.seed * 100000 + START_POSES.index(start_pose) * 10000 + trial
-            scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors)
+            scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors,
+                                 same_colour_distractor=args.distractor_same_colour, faults=faults)
             plan += [(start_pose, trial, scene_seed, scene, mode) for mode in modes]
     rows = []
     print(f'{len(plan)} runs ({args.trials} scenes x {len(start_poses)} start poses x {len(modes)} modes) -> {out}',
@@ -612,14 +1030,36 @@ def main(argv=None):
     return 0
 
 
+def soak_main(args, faults, out, command):
+    """``--soak N``: run it on a private master (:func:`run_soak`), print the summary, write ``soak.json``;
+    returns the application's exit code (1 if it had to be interrupted)."""
+    import rospy
+    from baxter_pnp.sim.launcher import RosMaster
+    print(f'soak: {args.soak} cycles, mode {args.mode}, start pose {args.start_pose}, place at '
+          f'{args.place[0]:g},{args.place[1]:g} -> {out}', flush=True)
+    with RosMaster(log_dir=os.path.join(out, 'ros_log')) as master, master.environment():
+        rospy.init_node('run_trials', anonymous=True, disable_signals=True)
+        _, summary = run_soak(master, args.soak, args.mode, args.start_pose, args.place, out, seed=args.seed,
+                              step_fraction=args.step_fraction, timeout_per_cycle=args.timeout, faults=faults)
+        rospy.signal_shutdown('soak finished')
+    with open(os.path.join(out, 'soak.json'), 'w') as f:
+        json.dump({'command': command, 'args': vars(args), **summary}, f, indent=1)
+    print(f'\n{command}\n\n{format_soak(summary)}')
+    return 1 if summary['returncode'] is None else summary['returncode']
+
+
 def report(rows, out, command, args=None):
-    """Print the tables (per mode, per mode and start pose); write ``summary.json`` and the plots in ``out``."""
+    """Print the tables (per mode, per mode and start pose, and per mode and :func:`condition` when the rows
+    ran under more than one); write ``summary.json`` and the plots in ``out``."""
     per_mode, per_start_pose = summarise(rows), summarise(rows, by_start_pose=True)
+    per_condition = summarise(rows, by_condition=True)
     with open(os.path.join(out, 'summary.json'), 'w') as f:
         json.dump({'command': command, 'args': args, 'per_mode': per_mode,
-                   'per_mode_and_start_pose': per_start_pose}, f, indent=1)
+                   'per_mode_and_start_pose': per_start_pose, 'per_mode_and_condition': per_condition}, f, indent=1)
     plot_results(rows, out)
     print(f'\n{command}\n\n{format_table(per_mode)}\n\n{format_table(per_start_pose)}')
+    if len({condition(row) for row in rows}) > 1:
+        print(f'\n{format_table(per_condition)}')
     placed = [float(r['place_error_mm']) for r in rows if r.get('place_error_mm') not in (None, '')]
     if placed:
         within = sum(e <= 1000 * PLACE_TOLERANCE for e in placed)

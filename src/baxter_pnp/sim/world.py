@@ -16,6 +16,9 @@ to the gripper).
 Faults (``scene.faults``, ``sim.faults``) acted out here: the occluder plate (visual only), the nudge
 (a kinematic slide of a block), and grippers whose first closes miss (the fingers pass through the
 blocks: finger-block collisions are off until the reopened fingers are clear of every block).
+
+``scene.respawn`` (soak tests) is acted out here too: a block that was lifted and has been put down and
+let go is moved to the next of its respawn poses (``respawns`` counts the moves).
 """
 import math
 
@@ -45,6 +48,10 @@ BLOCK_DENSITY = 780.0           # kg/m^3 (wood: a 40 x 40 x 20 mm square weighs 
 FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
 TABLE_THICKNESS = 0.04          # m
 TABLE_COLOR = (0.86, 0.86, 0.84, 1.0)
+RESPAWN_LIFT = 0.03             # m: a block counts as lifted once its underside is this far above the table top
+RESPAWN_TIP_CLEARANCE = 0.08    # m: every gripper tip must be this far above the block's top before a respawn
+RESPAWN_STILL_SPEED = 0.01      # m/s: a block whose points all move slower than this is at rest (resting
+                                # blocks jitter at up to ~3 mm/s in PyBullet, a sliding or rocking one is faster)
 CAMERA_NEAR, CAMERA_FAR = 0.01, 3.0          # m, render clipping planes
 IMAGE_NOISE_STD = 2.0           # grey levels (Gazebo's camera noise: 0.007 x 255)
 LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=2.0,
@@ -75,7 +82,7 @@ class SimWorld(PyBulletClientOwner):
         self._grippers = {side: _Gripper(self, side) for side in ('left', 'right')}
         p.setJointMotorControl2(self._robot, self._joints['head_pan'], p.POSITION_CONTROL, targetPosition=0.0,
                                 force=ARM_MOTOR_FORCE, physicsClientId=self._client)
-        self._make_table(scene.table)
+        self._table = self._make_table(scene.table)
         self._blocks = [self._make_block(obj) for obj in scene.objects]
         if scene.faults.occluder is not None:
             self._make_occluder(scene.faults.occluder)
@@ -85,6 +92,12 @@ class SimWorld(PyBulletClientOwner):
         self.set_arm_positions('left', scene.start_positions())
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
+        self._respawner = None if scene.respawn is None else _Respawner(self, scene.respawn)
+
+    @property
+    def respawns(self):
+        """How many times ``scene.respawn`` has re-placed its block (0 without a ``respawn``)."""
+        return 0 if self._respawner is None else self._respawner.count
 
     # ------------------------------------------------------------------------------------ building
     def _make_table(self, table):
@@ -155,6 +168,8 @@ class SimWorld(PyBulletClientOwner):
             for gripper in self._grippers.values():
                 gripper.update(self.time_step)
             self.time += self.time_step
+            if self._respawner is not None:
+                self._respawner.update()
 
     def _push(self, nudge):
         """Slide the nudged block over the coming step: put it where the push has brought it now and give it
@@ -517,6 +532,55 @@ class _Gripper:
             'gripping': self.gripping,
             'missed': self.closing and not moving and closed and not (touched[0] | touched[1]),
         }
+
+
+class _Respawner:
+    """Acts out a ``scene.Respawn``: watches its block after every step and re-places it when it is due.
+
+    The block is *lifted* once its underside (axis-aligned bounding box) rises ``RESPAWN_LIFT`` above the
+    table top. After that, it is due for a respawn when, for ``respawn.delay`` seconds of simulated time
+    without a break, it touches the table at rest (no point of it faster than ``RESPAWN_STILL_SPEED``,
+    bounded by |v| + |w| R, R its top face's circumradius) and every gripper tip (``<side>_gripper``
+    origin) is ``RESPAWN_TIP_CLEARANCE`` above the block's top: the finger pads end 5 mm below that
+    origin, so neither finger can touch the block then, whether the gripper is open or closed (it has
+    been let go). Then it is put at rest on the table at the next pose (cycling) and ``count`` grows.
+    """
+
+    def __init__(self, world, respawn):
+        self._world = world
+        self.respawn = respawn
+        self.body = world._blocks[respawn.object]
+        self.radius = world.scene.objects[respawn.object].model.circumradius     # m
+        self.count = 0
+        self.lifted = False
+        self._settled_since = None        # simulated time (s) since which the block has been down and let go
+
+    def update(self):
+        world, client = self._world, self._world._client
+        (_, _, bottom), (_, _, top) = p.getAABB(self.body, physicsClientId=client)
+        table_z = world.scene.table.top_z
+        if not self.lifted:
+            self.lifted = bottom >= table_z + RESPAWN_LIFT
+            return
+        if not self._settled(top):
+            self._settled_since = None
+        elif self._settled_since is None:
+            self._settled_since = world.time
+        elif world.time - self._settled_since >= self.respawn.delay - 1e-9:
+            x, y, yaw = self.respawn.poses[self.count % len(self.respawn.poses)]
+            world.place_object(self.respawn.object, (x, y), yaw)
+            self.count += 1
+            self.lifted, self._settled_since = False, None
+
+    def _settled(self, top):
+        """True if the block rests on the table with every gripper tip clear above its ``top`` (z, m)."""
+        world, client = self._world, self._world._client
+        linear, angular = p.getBaseVelocity(self.body, physicsClientId=client)
+        if np.linalg.norm(linear) + np.linalg.norm(angular) * self.radius >= RESPAWN_STILL_SPEED:
+            return False
+        if not p.getContactPoints(self.body, world._table, physicsClientId=client):
+            return False
+        return all(world.link_pose(f'{side}_gripper')[2, 3] >= top + RESPAWN_TIP_CLEARANCE for side in world._grippers)
 
 
 def _prism_mesh(top_xy, height):

@@ -211,3 +211,19 @@ def test_view_kept_twist_slows_a_twist_that_would_push_the_block_out_of_the_imag
                                 config.view_margin_px - 1e-6)
     np.testing.assert_allclose(servo.twist_between(T_base_camera, servo.integrate_twist(T_base_camera, pushing, 0.5),
                                                    0.5), pushing, atol=1e-9)
+
+
+def test_multi_cycle_result_json_and_summary_plot(tmp_path):
+    from baxter_pnp import application
+    done = pick.PickResult(success=True, mode='pbvs', time_s=6.0, steps=9, final_error_mm_est=0.4)
+    lost = pick.PickResult(success=False, mode='pbvs', failure_reason='block_lost')
+    assert application.results_json([done], pick.PickConfig()) == done.to_json()
+    summary = application.results_json([done, lost], pick.PickConfig(cycles=3))
+    assert summary['successes'] == 1 and not summary['success'] and summary['cycles_planned'] == 3
+    assert [c['failure_reason'] for c in summary['cycles']] == [None, 'block_lost']
+    assert application.results_json([done, done, done], pick.PickConfig(cycles=3))['success']
+    assert not application.results_json([done, done], pick.PickConfig(cycles=3))['success']   # one not run yet
+    application.plot_cycles([done, lost, done], str(tmp_path / 'cycles.png'))
+    assert (tmp_path / 'cycles.png').stat().st_size > 1000
+    with pytest.raises(ValueError, match='cycles'):
+        pick.PickConfig.from_dict({'cycles': 0})

@@ -201,6 +201,8 @@ class PickApplication:
                 self.finish()
             if not connected or self.result.failure_reason in FATAL_REASONS:
                 break
+        if self.output_dir and c.cycles > 1:
+            plot_cycles(self.results, os.path.join(self.output_dir, 'cycles.png'))
         return self.results
 
     def wait_for_next_block(self):
@@ -753,10 +755,11 @@ class PickApplication:
         if self.result_json:
             with open(self.result_json, 'w') as f:
                 json.dump(results_json(self.results, self.config), f, indent=1)
-        if self.output_dir:
-            cycle_dir = self.output_dir if self.config.cycles == 1 else os.path.join(
-                self.output_dir, 'cycle_%03d' % len(self.results))
-            write_outputs(cycle_dir, r, self.last_annotated)
+        if self.output_dir and self.config.cycles == 1:
+            write_outputs(self.output_dir, r, self.last_annotated)
+        elif self.output_dir:   # no plot per cycle: matplotlib's caches grow ~20 MiB over its first ~20 figures
+            write_outputs(os.path.join(self.output_dir, 'cycle_%03d' % len(self.results)), r, self.last_annotated,
+                          plot=False)
 
 
 def results_json(results, config):
@@ -770,15 +773,15 @@ def results_json(results, config):
             'cycles_planned': config.cycles}
 
 
-def write_outputs(output_dir, result, annotated):
-    """result.json, final_view.png (last annotated camera view) and errors.png (error vs step)."""
+def write_outputs(output_dir, result, annotated, plot=True):
+    """result.json, final_view.png (last annotated camera view) and, with ``plot``, errors.png (error vs step)."""
     import cv2
     os.makedirs(output_dir, exist_ok=True)
     with open(os.path.join(output_dir, 'result.json'), 'w') as f:
         json.dump(result.to_json(), f, indent=1)
     if annotated is not None:
         cv2.imwrite(os.path.join(output_dir, 'final_view.png'), annotated)
-    if result.history:
+    if plot and result.history:
         plot_errors(result, os.path.join(output_dir, 'errors.png'))
 
 
@@ -797,6 +800,30 @@ def plot_errors(result, path):
     ax_px.plot(steps, [h.error_px for h in result.history], 'o-', color='tab:green')
     ax_px.set_ylabel('image error (px)')
     ax_px.set_xlabel('step' if result.mode == 'pbvs' else 'iteration (camera frame)')
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def plot_cycles(results, path):
+    """A multi-cycle run at a glance: each cycle's time to grasp (s) and final estimated error (mm), failed
+    cycles marked with their reason."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    cycles = np.arange(1, len(results) + 1)
+    colours = ['tab:green' if r.success else 'tab:red' for r in results]
+    figure, (ax_time, ax_error) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    ax_time.bar(cycles, [r.time_s for r in results], color=colours)
+    ax_time.set_ylabel('time to grasp (s)')
+    ax_time.set_title('pick_square, mode %s: %d of %d cycles succeeded'
+                      % (results[0].mode, sum(r.success for r in results), len(results)))
+    for cycle, r in zip(cycles, results):
+        if not r.success:
+            ax_time.annotate(r.failure_reason, (cycle, 0), rotation=90, fontsize=7, va='bottom', ha='center')
+    ax_error.plot(cycles, [np.nan if r.final_error_mm_est is None else r.final_error_mm_est for r in results], 'o')
+    ax_error.set_ylabel('final estimated error (mm)')
+    ax_error.set_xlabel('cycle')
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)

@@ -64,6 +64,20 @@ def block_z(index=0):
     return pose_msg_to_matrix(poses.poses[index])[2, 3]
 
 
+@pytest.fixture
+def fake_baxter(fake_baxter):
+    """conftest's ``fake_baxter``, with each fake a case started stopped when the case ends, passed or failed
+    (a failed case must not leave its fake running: the next case's fake would refuse to start)."""
+    started = []
+
+    def start(*args, **kwargs):
+        started.append(fake_baxter(*args, **kwargs))
+        return started[-1]
+    yield start
+    for process in started:
+        process.stop()
+
+
 def run_case(ros_master, fake_baxter, tmp_path, faults=None, extra_objects=(), app_args=(), during=None):
     """Start the fake on the faulty scene, run the app (``during(fake)`` meanwhile, if given), return
     (exit code, result dict, log, lowest tip z, fake process)."""
@@ -101,32 +115,29 @@ def test_noisy_camera_slow_commands_flaky_ik_and_distractors(ros_master, ros_nod
                     'yaw': 0.0},
                    {'shape': 'square', 'side': 0.04, 'height': 0.02, 'color': [0.8, 0.1, 0.1], 'xy': [0.76, 0.18],
                     'yaw': 0.2}]
-    code, result, log, fake = run_case(ros_master, fake_baxter, tmp_path, faults, distractors)
+    code, result, log, _ = run_case(ros_master, fake_baxter, tmp_path, faults, distractors)
     assert_picked(code, result, log)
     assert 'no IK solution' in log          # the alternatives were needed, and worked
-    fake.stop()
 
 
 def test_camera_stall_blackout_and_nudged_block(ros_master, ros_node, fake_baxter, tmp_path):
     """The camera stalls, then goes black, and the block is pushed 3 cm during the approach: picked anyway."""
     faults = {'camera': {'stall': {'at': 2.0, 'duration': 1.5}, 'blackout': {'at': 4.0, 'duration': 0.5}},
               'nudge': {'at': 2.6, 'offset': [0.03, -0.02]}, 'time_origin': 'camera_open'}
-    code, result, log, fake = run_case(ros_master, fake_baxter, tmp_path, faults)
+    code, result, log, _ = run_case(ros_master, fake_baxter, tmp_path, faults)
     assert_picked(code, result, log)
     poses = rospy.wait_for_message('/fake_baxter/object_poses', PoseArray, timeout=10.0)
     assert poses.poses[0].position.x == pytest.approx(0.70 + 0.03, abs=0.02)     # it was moved, then picked
-    fake.stop()
 
 
 def test_missed_grasp_is_retried_with_a_twin_block_nearby(ros_master, ros_node, fake_baxter, tmp_path):
     """The first close finds nothing (fingers pass through); a second green square lies 12 cm away: regrasp."""
     twin = [{'shape': 'square', 'side': 0.04, 'height': 0.02, 'color': [0.1, 0.7, 0.1], 'xy': [0.60, 0.32],
              'yaw': 0.0}]
-    code, result, log, fake = run_case(ros_master, fake_baxter, tmp_path, {'gripper': {'miss_first': 1}}, twin)
+    code, result, log, _ = run_case(ros_master, fake_baxter, tmp_path, {'gripper': {'miss_first': 1}}, twin)
     assert code == 0 and result['success'] and result['grasp_attempts'] == 2, log[-3000:]
     assert 'missed' in log
     assert max(block_z(0), block_z(1)) > TABLE_TOP_Z + 0.07
-    fake.stop()
 
 
 @pytest.mark.parametrize('faults, reason', [
@@ -135,10 +146,9 @@ def test_missed_grasp_is_retried_with_a_twin_block_nearby(ros_master, ros_node, 
     ({'estop_at': 2.5, 'time_origin': 'camera_open'}, 'robot_stopped'),
 ])
 def test_aborts_cleanly(faults, reason, ros_master, ros_node, fake_baxter, tmp_path):
-    code, result, log, fake = run_case(ros_master, fake_baxter, tmp_path, faults)
+    code, result, log, _ = run_case(ros_master, fake_baxter, tmp_path, faults)
     assert code == 1 and not result['success'] and result['failure_reason'] == reason, log[-3000:]
     assert block_z() == pytest.approx(TABLE_TOP_Z + 0.02, abs=0.003), 'the block should still be on the table'
-    fake.stop()
 
 
 def test_robot_killed_and_restarted_mid_run(ros_master, ros_node, fake_baxter, tmp_path):
@@ -157,7 +167,6 @@ def test_robot_killed_and_restarted_mid_run(ros_master, ros_node, fake_baxter, t
     assert code == 0 and result['success'], log[-3000:]
     assert 'the robot is back' in log
     assert block_z() > TABLE_TOP_Z + 0.07
-    restarted[0].stop()
 
 
 def occluder_hiding(block, fraction, height, start_pose='down', table_top_z=TABLE_TOP_Z):
@@ -199,10 +208,9 @@ def test_partly_occluded_block_is_not_grasped_and_the_run_aborts_cleanly(ros_mas
     occluder = occluder_hiding(block, 0.3, 0.06)
     hidden = 1 - green_top_pixels({**scene, 'faults': {'occluder': occluder}}) / green_top_pixels(scene)
     assert 0.27 < hidden < 0.35, hidden                     # the plate does hide ~30 % of the face
-    code, result, log, fake = run_case(ros_master, fake_baxter, tmp_path, {'occluder': occluder})
+    code, result, log, _ = run_case(ros_master, fake_baxter, tmp_path, {'occluder': occluder})
     assert code == 1 and not result['success'] and result['failure_reason'] == 'block_lost', log[-3000:]
     assert result['steps'] == 0 and 'no whole green square in view after 4 re-acquisition moves' in log
     poses = rospy.wait_for_message('/fake_baxter/object_poses', PoseArray, timeout=10.0)
     np.testing.assert_allclose(pose_msg_to_matrix(poses.poses[0])[:3, 3], [*block['xy'], TABLE_TOP_Z + 0.02],
                                atol=1e-3)                   # untouched
-    fake.stop()

@@ -39,6 +39,7 @@ from baxter_pnp.ros_image import msg_to_bgr
 from baxter_pnp.transforms import from_xyz_quat, invert, matrix_to_pose_msg, to_xyz_quat
 
 JOINT_ANGLE_TOLERANCE = 0.008726646   # rad (0.5 deg): baxter_interface's "arrived" threshold
+ROBOT_TIME_BACKSTOP = 10.0             # a wait in robot time gives up after this many times its timeout of wall time
 CAMERA_INFO_GRACE = 1.0                # s (wall): frames may arrive before the first camera_info
 COMMAND_TIMEOUT = 0.2                 # s: the robot drops velocity commands older than this (SDK default)
 DEFAULT_SPEED_RATIO = 0.3             # the robot's position-mode speed ratio until set_speed_ratio is called
@@ -76,13 +77,18 @@ class IKFailure(RobotError):
     """The robot's IK service found no joint solution (the message gives the reason)."""
 
 
-def _wait_until(condition, timeout, body=None, rate_hz=COMMAND_RATE_HZ):
-    """Call ``body()`` at ``rate_hz`` (wall clock) until ``condition()``; True if it held within ``timeout`` s."""
-    deadline = time.monotonic() + timeout
+def _wait_until(condition, timeout, body=None, rate_hz=COMMAND_RATE_HZ, robot_time=False):
+    """Call ``body()`` at ``rate_hz`` (wall clock) until ``condition()``; True if it held within ``timeout`` s.
+
+    With ``robot_time`` the timeout counts ROS time (the robot's: a simulator running slower than real
+    time gets the same motion time as a real robot), with a wall-clock backstop of
+    ``ROBOT_TIME_BACKSTOP`` x ``timeout`` in case the robot's clock stops."""
+    deadline = time.monotonic() + (ROBOT_TIME_BACKSTOP * timeout if robot_time else timeout)
+    robot_deadline = rospy.get_time() + timeout if robot_time else None
     while not condition():
         if rospy.is_shutdown():
             raise RobotError('ROS is shutting down')
-        if time.monotonic() > deadline:
+        if time.monotonic() > deadline or (robot_time and rospy.get_time() > robot_deadline):
             return False
         if body is not None:
             body()
@@ -586,7 +592,8 @@ class Gripper:
         ``id`` from the state, ``sender`` = node name + '_' + command, ``sequence`` counting from 1,
         ``args`` as JSON. Blocking: republish at 100 Hz until the state acknowledges the command
         (command_sender and command_sequence, up to ``timeout`` s), then until ``test()`` holds (at
-        least 0.5 s more); returns ``test()``'s final value (False on timeout).
+        least 0.5 s more, robot time: the fingers move in the robot's time); returns ``test()``'s final
+        value (False on timeout).
         """
         self._sequence = self._sequence % 0x7FFFFFFF + 1
         message = msg.EndEffectorCommand(id=self._state.value.id, command=command,
@@ -604,7 +611,8 @@ class Gripper:
         if not _wait_until(acknowledged, timeout, body=lambda: self._command_pub.publish(message)):
             rospy.logdebug(f'{self.side} gripper: no acknowledgement of {command} within {timeout} s')
         remaining = max(0.5, timeout - (time.monotonic() - started))
-        return _wait_until(test or (lambda: True), remaining, body=lambda: self._command_pub.publish(message))
+        return _wait_until(test or (lambda: True), remaining, body=lambda: self._command_pub.publish(message),
+                           robot_time=True)
 
     def configure(self, **parameters):
         """Send the gripper parameters (percent): the defaults updated with ``parameters`` (non-blocking)."""

@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import pick
+from baxter_pnp import pick, servo
 from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
@@ -116,11 +116,7 @@ def top_face_in_view(T_base_block, model, T_base_camera, camera, margin_px, clea
     if not (np.all(pixels >= margin_px) and np.all(pixels[:, 0] <= camera.width - 1 - margin_px)
             and np.all(pixels[:, 1] <= camera.height - 1 - margin_px)):
         return False
-    if clearance_px is None:
-        return True
-    face = np.zeros(clearance_px.shape, np.uint8)
-    cv2.fillPoly(face, [np.round(pixels).astype(np.int32)], 1)
-    return bool(clearance_px[face > 0].min() > margin_px)
+    return clearance_px is None or servo.polygon_clear(pixels, clearance_px, margin_px)
 
 
 def on_table(T_base_block, model, table):
@@ -889,6 +885,7 @@ def run_soak(master, cycles, mode, start_pose, place_xy, out, seed=0, step_fract
     ``cycles`` wall seconds. This process's rospy node must already run on ``master`` (see :func:`main`).
     """
     import rospy
+    from rosgraph_msgs.msg import Clock
     from baxter_pnp.sim.launcher import FakeBaxterProcess, start_script
     os.makedirs(out, exist_ok=True)
     side, poses = soak_poses(np.random.default_rng(seed), start_pose, cycles, place_xy)
@@ -904,7 +901,8 @@ def run_soak(master, cycles, mode, start_pose, place_xy, out, seed=0, step_fract
     run, watcher = None, None
     try:
         fake.start()
-        started = rospy.get_time()
+        # the new fake's simulated time: this node's rospy clock may still show an earlier fake's last /clock
+        started = rospy.wait_for_message('/clock', Clock, timeout=10.0).clock.to_sec()
         app = start_script(master, 'pick_square.py',
                            ['--cycles', cycles, '--place', '%g,%g' % tuple(place_xy), '--mode', mode,
                             '--start-pose', start_pose, '--side-length', side, '--step-fraction', step_fraction,

@@ -227,3 +227,29 @@ def test_multi_cycle_result_json_and_summary_plot(tmp_path):
     assert (tmp_path / 'cycles.png').stat().st_size > 1000
     with pytest.raises(ValueError, match='cycles'):
         pick.PickConfig.from_dict({'cycles': 0})
+
+
+def test_plan_approach_turns_the_gripper_and_shortens_the_view_for_what_is_out_of_reach():
+    config = pick.PickConfig()
+    T_base_block = block_at(0.70, 0.0, 0.0)
+    start = gripper_down_at(0.65, 0.25, 0.14)
+    everywhere = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA, lambda T: True)
+    assert (everywhere.rank, everywhere.view_depth) == (0, config.view_depth)
+
+    orientations = servo.grasp_orientations(T_base_block, config.model.symmetry_angle, start)
+    view_x = [pick.view_pose(T_base_block, pick.hover_pose(T_base_block, config, make_transform(R)),
+                             T_GRIPPER_CAMERA, CAMERA, config)[0, 3] for R in orientations]
+    x_floor = min(sorted(view_x)[1], 0.70) - 0.001     # keep the arm off x < x_floor: the nearest view fails
+    assert view_x[0] < x_floor                           # (here: the least rotation's)
+    approach = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA, lambda T: T[0, 3] >= x_floor)
+    assert approach.rank == next(k for k, x in enumerate(view_x) if x >= x_floor) > 0
+    assert approach.view_depth == config.view_depth
+
+    def within(radius):                         # an arm that reaches only this far (m) from the block
+        return lambda T: np.linalg.norm(T[:2, 3] - T_base_block[:2, 3]) <= radius
+    offset = np.linalg.norm(pick.view_pose(T_base_block, pick.hover_pose(T_base_block, config, start),
+                                           T_GRIPPER_CAMERA, CAMERA, config)[:2, 3] - T_base_block[:2, 3])
+    shorter = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA, within(0.8 * offset))
+    assert shorter.rank == 0 and shorter.view_depth < config.view_depth     # a closer view is in reach
+    nothing = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA, lambda T: False)
+    assert nothing.rank == -1 and nothing.view_depth == config.view_depth

@@ -28,7 +28,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
-from baxter_pnp import perception, pick, robot, servo, transforms, vision
+from baxter_pnp import perception, pick, robot, servo, vision
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.ros_image import bgr_to_msg
@@ -62,12 +62,6 @@ class Look(NamedTuple):
     T_base_block: Optional[np.ndarray]
 
 
-class Approach(NamedTuple):
-    """How the arm approaches the block, chosen once per approach (``PickApplication.plan_approach``)."""
-    T_reference: np.ndarray     # 4x4 whose rotation picks the grasp orientation among the block's symmetric ones
-    view_depth: float           # camera-to-block distance of the view pose (m)
-
-
 class RobotRestarted(robot.RobotError):
     """The robot came back from a restart (disabled, clock reset): the run can resume after re-enabling."""
 
@@ -97,7 +91,8 @@ class RunClock:
 
 
 class PickApplication:
-    """One pick (and place) run. Construct after ``rospy.init_node``; ``run()`` returns a PickResult."""
+    """A pick (and place) run of ``config.cycles`` cycles. Construct after ``rospy.init_node``; ``run()``
+    returns the cycles' PickResults."""
 
     def __init__(self, config, vision_config, output_dir=None, result_json=None):
         self.config = config
@@ -109,7 +104,7 @@ class PickApplication:
         self.last_block = None
         self.last_annotated = None
         self._hand_clearance = {}       # camera model key -> servo.hand_clearance_px map
-        self.approach = None            # Approach of the current approach (plan_approach)
+        self.approach = None            # pick.Approach of the current approach (plan_approach)
         self._views_saved = 0
         self._debug_pub = rospy.Publisher('/baxter_pnp/debug_image', Image, queue_size=1)
         self._target_pub = rospy.Publisher('/baxter_pnp/target_pose', PoseStamped, queue_size=1, latch=True)
@@ -530,39 +525,23 @@ class PickApplication:
         raise PickFailure('not_converged', 'feature error still %.1f px after %d iterations'
                           % (error * camera.fx, 10 * c.max_steps))
 
-    def plan_approach(self, look, shrink=0.85, tries=5):
-        """Choose, once per approach, the grasp orientation and the view pose's depth (``self.approach``).
-
-        The block's symmetric grasp orientations are tried from the smallest rotation of the gripper up,
-        with the view pose's camera-to-block distance ``view_depth`` or shorter (by ``shrink``, ``tries``
-        times): the first whose hover pose and view pose the arm can reach (URDF IK from the current
-        angles) wins. At the view pose the camera looks down at the block low in its image, so the gripper
-        is ~0.1 m beyond the block along its own x: for a far block a turned gripper brings that back into
-        reach. If nothing is reachable, the smallest rotation and ``view_depth``.
-        """
+    def plan_approach(self, look):
+        """``pick.plan_approach`` from this look, reachability by the URDF's IK from the current angles."""
         c = self.config
         q = self.limb.joint_positions()
-        orientations = servo.grasp_orientations(look.T_base_block, self.model.symmetry_angle, look.T_base_gripper)
-        for rank, R in enumerate(orientations):
-            T_reference = transforms.make_transform(R)
-            T_hover = pick.hover_pose(look.T_base_block, c, T_reference)
-            if self.kinematics.ik(T_hover, seed=q) is None:
-                continue
-            depth = c.view_depth
-            for _ in range(tries):
-                T_view = pick.view_pose(look.T_base_block, T_hover, self.hand_eye.T_gripper_camera,
-                                        look.frame.camera, c, depth)
-                if self.kinematics.ik(T_view, seed=q) is not None:
-                    rospy.loginfo('pick [%s]: approach planned: grasp orientation %d of %d (%.0f deg from the '
-                                  'current one), view from %.0f mm' % (c.mode, rank + 1, len(orientations),
-                                                                      np.degrees(pick.pose_error(look.T_base_gripper,
-                                                                                                 T_hover)[1]),
-                                                                      1000 * depth))
-                    return Approach(T_reference, depth)
-                depth *= shrink
-        rospy.logwarn('pick [%s]: no grasp orientation with a reachable hover and view pose: trying the nearest'
-                      % c.mode)
-        return Approach(transforms.make_transform(orientations[0]), c.view_depth)
+        approach = pick.plan_approach(look.T_base_block, look.T_base_gripper, c, look.frame.camera,
+                                      self.hand_eye.T_gripper_camera,
+                                      lambda T: self.kinematics.ik(T, seed=q) is not None)
+        if approach.rank < 0:
+            rospy.logwarn('pick [%s]: no grasp orientation with a reachable hover and view pose: trying the nearest'
+                          % c.mode)
+        else:
+            T_hover = pick.hover_pose(look.T_base_block, c, approach.T_reference)
+            rospy.loginfo('pick [%s]: approach planned: grasp orientation %d (%.0f deg from the current one), view '
+                          'from %.0f mm' % (c.mode, approach.rank + 1,
+                                            np.degrees(pick.pose_error(look.T_base_gripper, T_hover)[1]),
+                                            1000 * approach.view_depth))
+        return approach
 
     def look_for_velocity_loop(self, after_stamp):
         """Next look of the velocity loop; on a lost or cut block the arm stops and re-acquires first."""

@@ -11,14 +11,14 @@ below the top face), to which the arm then descends and closes.
 """
 import math
 from dataclasses import asdict, dataclass, field, fields
-from typing import List, Optional
+from typing import List, NamedTuple, Optional
 
 import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp import models, servo
-from baxter_pnp.transforms import invert, transform_points
+from baxter_pnp.transforms import invert, make_transform, transform_points
 
 MODES = ('pbvs', 'ibvs', 'hybrid')
 
@@ -256,6 +256,38 @@ def view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config, dept
     T_base_camera[:3, :3] = R_base_camera
     T_base_camera[:3, 3] = T_base_block[:3, 3] - R_base_camera @ block_in_camera
     return T_base_camera @ invert(T_gripper_camera)
+
+
+class Approach(NamedTuple):
+    """How the arm approaches the block, chosen once per approach (:func:`plan_approach`)."""
+    T_reference: np.ndarray     # 4x4 whose rotation picks the grasp orientation among the block's symmetric ones
+    view_depth: float           # camera-to-block distance of the view pose (m)
+    rank: int                   # which grasp orientation (0: the least rotation from the gripper's); -1: none reachable
+
+
+def plan_approach(T_base_block, T_base_gripper, config, camera, T_gripper_camera, reachable, shrink=0.85, tries=5):
+    """The grasp orientation and view depth of an approach (an :class:`Approach`).
+
+    The block's symmetric grasp orientations (``servo.grasp_orientations``) are tried from the smallest
+    rotation of the gripper up, with the view pose's camera-to-block distance ``config.view_depth`` or
+    shorter (by ``shrink``, ``tries`` times): the first whose hover pose and view pose pass ``reachable``
+    (a predicate on a gripper pose in base, e.g. IK from the current angles) wins. At the view pose the
+    camera looks down at the block low in its image, so the gripper is ~0.1 m beyond the block along its own
+    x: for a far block a turned gripper brings that back into reach. If nothing is reachable, the smallest
+    rotation and ``view_depth`` with ``rank`` -1.
+    """
+    orientations = servo.grasp_orientations(T_base_block, config.model.symmetry_angle, T_base_gripper)
+    for rank, R in enumerate(orientations):
+        T_reference = make_transform(R)
+        T_hover = hover_pose(T_base_block, config, T_reference)
+        if not reachable(T_hover):
+            continue
+        depth = config.view_depth
+        for _ in range(tries):
+            if reachable(view_pose(T_base_block, T_hover, T_gripper_camera, camera, config, depth)):
+                return Approach(T_reference, depth, rank)
+            depth *= shrink
+    return Approach(make_transform(orientations[0]), config.view_depth, -1)
 
 
 def raised(T_base_gripper, height):

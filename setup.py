@@ -2,5 +2,6 @@
 from setuptools import setup
 from catkin_pkg.python_setup import generate_distutils_setup
 
-setup(**generate_distutils_setup(packages=['baxter_pnp', 'baxter_pnp.sim'],
+setup(**generate_distutils_setup(packages=['baxter_pnp', 'baxter_pnp.bench', 'baxter_pnp.robot', 'baxter_pnp.sim',
+                                           'baxter_pnp.task', 'baxter_pnp.vision'],
                                  package_dir={'': 'src'}))

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Vision-guided pick (and place) of a coloured block with Baxter's hand camera (see baxter_pnp.application)."""
+"""Vision-guided pick (and place) of a coloured block with Baxter's hand camera (see baxter_pnp.pick_app)."""
 import os
 import sys
 
@@ -7,6 +7,6 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.
 from baxter_pnp.runtime import use_project_venv  # noqa: E402
 use_project_venv(__file__)
 
-from baxter_pnp.application import main  # noqa: E402
+from baxter_pnp.pick_app import main  # noqa: E402
 
 sys.exit(main())

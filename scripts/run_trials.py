@@ -7,6 +7,6 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.realpath(__file__)), os.
 from baxter_pnp.runtime import use_project_venv  # noqa: E402
 use_project_venv(__file__)
 
-from baxter_pnp.sim.trials import main  # noqa: E402
+from baxter_pnp.bench.trials import main  # noqa: E402
 
 sys.exit(main())

@@ -1,4 +1,4 @@
-"""Tests of the thesis-experiment runner (baxter_pnp.sim.experiments): pose geometry, error bookkeeping,
+"""Tests of the thesis-experiment runner (baxter_pnp.bench.experiments): pose geometry, error bookkeeping,
 and a reduced depth run against the real fake Baxter."""
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from baxter_pnp.sim import experiments
+from baxter_pnp.bench import experiments
 from baxter_pnp.transforms import invert, make_transform
 
 TARGET = np.array([0.62, 0.25, -0.13])

@@ -30,7 +30,8 @@ from baxter_pnp.models import model_for
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.ros_image import msg_to_bgr
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
-from baxter_pnp.sim.node import camera_settings_problem, ik_stages, parse_camera_option, parse_joint_command
+from baxter_pnp.sim.cameras import camera_settings_problem, parse_camera_option
+from baxter_pnp.sim.node import ik_stages, parse_joint_command
 from baxter_pnp.sim.scene import load_scene
 from baxter_pnp.transforms import (from_xyz_quat, invert, make_transform, matrix_to_pose_msg, pose_msg_to_matrix,
                                    rotation_angle_between)

@@ -21,10 +21,10 @@ import rospy
 import yaml
 from geometry_msgs.msg import PoseArray
 
+from baxter_pnp.bench import trial_scenes
 from baxter_pnp.msgs import msg
-from baxter_pnp.sim import trials
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
-from baxter_pnp.sim.launcher import FakeBaxterProcess, run_script, wait_until
+from baxter_pnp.sim.launcher import run_script, wait_until
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, Scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import pose_msg_to_matrix
@@ -174,7 +174,7 @@ def occluder_hiding(block, fraction, height, start_pose='down', table_top_z=TABL
     camera at ``start_pose``, covers the strip of the block's top face along its +x edge, ``fraction`` of
     the side wide (and overhangs the face elsewhere). The shadow is the plate scaled about the camera's
     centre (a homothety maps the plate's rectangle to a rectangle of the same yaw on the top-face plane)."""
-    centre = trials.start_view(start_pose)[0][:3, 3]
+    centre = trial_scenes.start_view(start_pose)[0][:3, 3]
     side, yaw = block['side'], block['yaw']
     scale = (centre[2] - (table_top_z + height + OCCLUDER_THICKNESS)) / (centre[2] - (table_top_z + block['height']))
     rotation = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
@@ -189,7 +189,7 @@ def green_top_pixels(scene_dict, start_pose='down'):
     world = SimWorld(Scene.from_dict(scene_dict))
     world.command_gripper('left', 100.0, velocity_percent=100.0)      # open, as at the application's first look
     world.step(240)
-    image = world.render_camera('left_hand_camera', trials.start_view(start_pose)[2])
+    image = world.render_camera('left_hand_camera', trial_scenes.start_view(start_pose)[2])
     world.close()
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     return int(np.sum((hsv[..., 0] > 45) & (hsv[..., 0] < 75) & (hsv[..., 1] > 100) & (hsv[..., 2] > 150)))

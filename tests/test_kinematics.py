@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp.kinematics import NEUTRAL, ArmKinematics, pose_error
+from baxter_pnp.kinematics import NEUTRAL, ArmKinematics, pose_difference
 from baxter_pnp.transforms import from_xyz_quat, rotation_angle_between, to_xyz_quat
 
 UNTUCKED = [-0.08000, -0.99998, -1.18997, 1.94002, 0.67000, 1.03001, -0.50000]
@@ -121,7 +121,7 @@ def test_ik_of_the_camera_frame(left):
     T = left.fk(q_true, 'left_hand_camera')
     q = left.ik(T, frame='left_hand_camera', seed=NEUTRAL)
     assert q is not None
-    error = pose_error(left.fk(q, 'left_hand_camera'), T)
+    error = pose_difference(left.fk(q, 'left_hand_camera'), T)
     assert np.linalg.norm(error[:3]) < 1e-3 and np.linalg.norm(error[3:]) < np.radians(0.5)
 
 
@@ -136,18 +136,18 @@ def test_ik_of_unreachable_pose_returns_none(left, position):
 def test_hand_solids_project_where_the_fake_renders_the_open_fingers():
     """The fingers hide the top of the hand camera's image: the URDF's gripper solids, ray-cast through the
     published camera model, must cover the same pixels as the fake's rendering of the empty table."""
-    from baxter_pnp import servo
-    from baxter_pnp.sim import trials
+    from baxter_pnp import view
+    from baxter_pnp.bench import trial_scenes
     from baxter_pnp.transforms import invert
-    T_base_camera, T_base_gripper, camera, _ = trials.start_view('down')
+    T_base_camera, T_base_gripper, camera, _ = trial_scenes.start_view('down')
     kinematics = ArmKinematics('left')
     try:
         solids = kinematics.hand_solids()
     finally:
         kinematics.close()
     T_camera_gripper = invert(T_base_camera) @ T_base_gripper
-    geometric = servo.hand_clearance_px(camera, [solid.moved(T_camera_gripper) for solid in solids]) == 0
-    rendered = trials.hand_clearance_px('down') == 0
+    geometric = view.hand_clearance_px(camera, [solid.moved(T_camera_gripper) for solid in solids]) == 0
+    rendered = trial_scenes.rendered_hand_clearance_px('down') == 0
     assert 0.05 < rendered.mean() < 0.2                          # the fingers are in view at all
     assert np.sum(geometric != rendered) < 0.02 * rendered.sum()  # and in the same place (edges differ)
     closed = ArmKinematics('left')

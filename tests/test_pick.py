@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import models, pick, servo
+from baxter_pnp import models, pick, servo, view
 from baxter_pnp.camera import load_default_camera
-from baxter_pnp.transforms import invert, make_transform, transform_points
+from baxter_pnp.transforms import invert, make_transform, pose_error, transform_points
 
 # The hand camera in the gripper frame (left_gripper -> left_hand_camera, baxter_kinematics.md §2).
 T_GRIPPER_CAMERA = make_transform(Rotation.from_euler('z', -np.pi / 2), (0.03825, 0.012, -0.142345))
@@ -32,7 +32,7 @@ def test_config_validation_names_the_key():
 
 def test_table_plane_in_camera_contains_table_points():
     T_base_camera = gripper_down_at(0.6, 0.2, 0.3) @ T_GRIPPER_CAMERA
-    plane = pick.table_plane_in_camera(T_base_camera, -0.15)
+    plane = models.table_plane_in_camera(T_base_camera, -0.15)
     table_points_base = np.array([[0.5, 0.1, -0.15], [0.8, 0.4, -0.15], [0.65, 0.2, -0.15]])
     table_points_camera = transform_points(invert(T_base_camera), table_points_base)
     np.testing.assert_allclose(table_points_camera @ plane.normal, plane.offset, atol=1e-12)
@@ -60,12 +60,12 @@ def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():
     far = gripper_down_at(0.7, 0.25, 0.14)
     step, toward = pick.pbvs_target(far, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)
     assert toward is T_goal
-    before, _ = pick.pose_error(far, T_goal)
-    after, _ = pick.pose_error(step, T_goal)
+    before, _ = pose_error(far, T_goal)
+    after, _ = pose_error(step, T_goal)
     assert after == pytest.approx((1 - config.step_fraction) * before, rel=1e-6)
     near = T_goal.copy()
     near[0, 3] += 0.005
-    assert pick.pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)[0],
+    assert pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)[0],
                            T_goal)[0] < 1e-9
     assert pick.converged(T_goal, T_goal, config) and not pick.converged(near, T_goal, config)
 
@@ -78,7 +78,7 @@ def hand_clearance():
         solids = [solid.moved(invert(T_GRIPPER_CAMERA)) for solid in kinematics.hand_solids()]
     finally:
         kinematics.close()
-    return servo.hand_clearance_px(CAMERA, solids)
+    return view.hand_clearance_px(CAMERA, solids)
 
 
 def test_pbvs_goes_via_the_view_pose_instead_of_passing_the_block_behind_a_finger(hand_clearance):
@@ -92,7 +92,7 @@ def test_pbvs_goes_via_the_view_pose_instead_of_passing_the_block_behind_a_finge
     vertices_base = transform_points(T_base_block, config.model.vertices)
 
     def clear_of_fingers(T_base_gripper):
-        return servo.points_in_view(T_base_gripper @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
+        return view.points_in_view(T_base_gripper @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
 
     assert clear_of_fingers(start)
     T, hidden_steps = start, 0
@@ -107,7 +107,7 @@ def test_pbvs_goes_via_the_view_pose_instead_of_passing_the_block_behind_a_finge
             break
         T, toward = pick.pbvs_target(T, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, hand_clearance)
         via_view += toward is not T_hover
-        assert servo.points_in_view(T @ T_GRIPPER_CAMERA, vertices_base, CAMERA, config.view_margin_px - 1e-6,
+        assert view.points_in_view(T @ T_GRIPPER_CAMERA, vertices_base, CAMERA, config.view_margin_px - 1e-6,
                                     hand_clearance)
     assert pick.converged(T, T_hover, config)
     assert via_view > 0
@@ -117,10 +117,10 @@ def test_place_pose_puts_the_block_bottom_at_the_requested_height():
     config = pick.PickConfig()
     T_holding = gripper_down_at(0.7, 0.25, -0.04)
     T_gripper_block = make_transform(Rotation.from_euler('x', np.pi), (0.001, -0.002, config.grasp_depth))
-    T_place = pick.place_pose(T_holding, T_gripper_block, (0.6, 0.1), config, 0.004)
+    T_place = pick.place_pose(T_holding, T_gripper_block, (0.6, 0.1), config, -0.12, 0.004)
     T_base_block = T_place @ T_gripper_block
     np.testing.assert_allclose(T_base_block[:2, 3], [0.6, 0.1], atol=1e-12)
-    assert T_base_block[2, 3] == pytest.approx(config.table_top_z + config.block_height + 0.004)
+    assert T_base_block[2, 3] == pytest.approx(-0.12 + config.block_height + 0.004)
     np.testing.assert_allclose(T_place[:3, :3], T_holding[:3, :3])
 
 
@@ -188,10 +188,10 @@ def test_a_block_already_near_a_finger_is_moved_away_from_it(hand_clearance):
         middle = 0.5 * (low + high)
         T = servo.interpolate_pose(clear, hidden, middle)
         low, high = (middle, high) if finger_distance_px(T) > 0.0 else (low, middle)
-    kept = servo.keep_in_view_step(T, T_view, config.step_fraction, vertices_base, CAMERA, T_GRIPPER_CAMERA,
+    kept = view.keep_in_view_step(T, T_view, config.step_fraction, vertices_base, CAMERA, T_GRIPPER_CAMERA,
                                    margin_px=config.view_margin_px, clearance_px=hand_clearance)
     assert finger_distance_px(T) < finger_distance_px(kept)
-    assert servo.points_in_view(kept @ T_GRIPPER_CAMERA, vertices_base, CAMERA)
+    assert view.points_in_view(kept @ T_GRIPPER_CAMERA, vertices_base, CAMERA)
 
 
 def test_view_kept_twist_slows_a_twist_that_would_push_the_block_out_of_the_image():
@@ -199,34 +199,35 @@ def test_view_kept_twist_slows_a_twist_that_would_push_the_block_out_of_the_imag
     T_base_camera = gripper_down_at(0.65, 0.25, 0.14) @ T_GRIPPER_CAMERA
     T_base_block = block_at(0.70, 0.25, 0.0)
     vertices_base = transform_points(T_base_block, config.model.vertices)
-    assert servo.points_in_view(T_base_camera, vertices_base, CAMERA, config.view_margin_px)
+    assert view.points_in_view(T_base_camera, vertices_base, CAMERA, config.view_margin_px)
     gentle = np.array([0.0, 0.0, 0.01, 0.0, 0.0, 0.0])      # 1 cm/s toward the table: stays in view
     np.testing.assert_array_equal(pick.view_kept_twist(gentle, T_base_camera, T_base_block, config, CAMERA), gentle)
     pushing = np.array([0.0, 0.0, 0.0, 1.2, 0.0, 0.0])      # a fast tilt sweeps the block off the image
-    assert not servo.points_in_view(servo.integrate_twist(T_base_camera, pushing, 0.5), vertices_base, CAMERA,
+    assert not view.points_in_view(servo.integrate_twist(T_base_camera, pushing, 0.5), vertices_base, CAMERA,
                                     config.view_margin_px)
     kept = pick.view_kept_twist(pushing, T_base_camera, T_base_block, config, CAMERA)
     assert 0.0 < np.linalg.norm(kept[3:]) < np.linalg.norm(pushing[3:])
-    assert servo.points_in_view(servo.integrate_twist(T_base_camera, kept, 0.5), vertices_base, CAMERA,
+    assert view.points_in_view(servo.integrate_twist(T_base_camera, kept, 0.5), vertices_base, CAMERA,
                                 config.view_margin_px - 1e-6)
     np.testing.assert_allclose(servo.twist_between(T_base_camera, servo.integrate_twist(T_base_camera, pushing, 0.5),
                                                    0.5), pushing, atol=1e-9)
 
 
 def test_multi_cycle_result_json_and_summary_plot(tmp_path):
-    from baxter_pnp import application
+    from baxter_pnp.task import outputs
+    from baxter_pnp.task.settings import SessionConfig
     done = pick.PickResult(success=True, mode='pbvs', time_s=6.0, steps=9, final_error_mm_est=0.4)
     lost = pick.PickResult(success=False, mode='pbvs', failure_reason='block_lost')
-    assert application.results_json([done], pick.PickConfig()) == done.to_json()
-    summary = application.results_json([done, lost], pick.PickConfig(cycles=3))
+    assert outputs.results_json([done], 1, 'pbvs') == done.to_json()
+    summary = outputs.results_json([done, lost], 3, 'pbvs')
     assert summary['successes'] == 1 and not summary['success'] and summary['cycles_planned'] == 3
     assert [c['failure_reason'] for c in summary['cycles']] == [None, 'block_lost']
-    assert application.results_json([done, done, done], pick.PickConfig(cycles=3))['success']
-    assert not application.results_json([done, done], pick.PickConfig(cycles=3))['success']   # one not run yet
-    application.plot_cycles([done, lost, done], str(tmp_path / 'cycles.png'))
+    assert outputs.results_json([done, done, done], 3, 'pbvs')['success']
+    assert not outputs.results_json([done, done], 3, 'pbvs')['success']   # one not run yet
+    outputs.plot_cycles([done, lost, done], str(tmp_path / 'cycles.png'))
     assert (tmp_path / 'cycles.png').stat().st_size > 1000
     with pytest.raises(ValueError, match='cycles'):
-        pick.PickConfig.from_dict({'cycles': 0})
+        SessionConfig.from_dict({'cycles': 0})
 
 
 def test_plan_approach_turns_the_gripper_and_shortens_the_view_for_what_is_out_of_reach():
@@ -236,7 +237,7 @@ def test_plan_approach_turns_the_gripper_and_shortens_the_view_for_what_is_out_o
     everywhere = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA, lambda T: True)
     assert (everywhere.rank, everywhere.view_depth) == (0, config.view_depth)
 
-    orientations = servo.grasp_orientations(T_base_block, config.model.symmetry_angle, start)
+    orientations = pick.grasp_orientations(T_base_block, config.model.symmetry_angle, start)
     view_x = [pick.view_pose(T_base_block, pick.hover_pose(T_base_block, config, make_transform(R)),
                              T_GRIPPER_CAMERA, CAMERA, config)[0, 3] for R in orientations]
     x_floor = min(sorted(view_x)[1], 0.70) - 0.001     # keep the arm off x < x_floor: the nearest view fails

@@ -3,6 +3,8 @@
 The tests run in file order: first what needs no robot (fallbacks, frame validation), then the
 robot clients against one fake Baxter, and last the watchdog after that fake Baxter is stopped.
 """
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -15,7 +17,8 @@ from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.msgs import msg
 from baxter_pnp.robot import (Gripper, HandCamera, IKFailure, Limb, RobotEnable, RobotTimeout, ServiceUnavailable,
-                              StreamLost, _arm_joint_state, _endpoint_state, hand_eye_transform)
+                              StreamLost, hand_eye_transform)
+from baxter_pnp.robot.limb import _arm_joint_state, _endpoint_state
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.safety import ArmSafety, UnsafeCommand
 from baxter_pnp.transforms import from_xyz_rpy, make_transform, matrix_to_pose_msg
@@ -41,6 +44,21 @@ def wait_for_connection(publisher, timeout=5.0):
 
 
 # ============================================================================ without a robot
+IMPORT_PROBE = """
+import sys
+import baxter_pnp.robot.sdk
+heavy = sorted(name for name in ('rospy', 'numpy') if name in sys.modules)
+import baxter_pnp.sim.node
+print('probe:', heavy, sorted(name for name in sys.modules if name.startswith('baxter_pnp.robot')))
+"""
+
+
+def test_the_sdk_module_is_cheap_and_all_the_fake_baxter_loads_of_the_robot_package():
+    result = subprocess.run([sys.executable, '-c', IMPORT_PROBE], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "probe: [] ['baxter_pnp.robot', 'baxter_pnp.robot.sdk']" in result.stdout.splitlines()
+
+
 def test_joint_state_messages_are_filtered_and_validated(kinematics):
     names = kinematics.joint_names
     real_robot_order = ['head_pan', 'left_e0', 'left_e1', 'left_s0', 'left_s1', 'left_w0', 'left_w1', 'left_w2',
@@ -61,7 +79,12 @@ def test_endpoint_messages_are_validated():
     T = make_transform(DOWN, (0.6, 0.2, 0.1))
     message = msg.EndpointState()
     matrix_to_pose_msg(T, message.pose)
-    np.testing.assert_allclose(_endpoint_state(message).T_base_gripper, T, atol=1e-12)
+    message.twist.linear.x, message.twist.angular.z = 0.05, -0.3
+    message.header.stamp = rospy.Time(12, 500000000)
+    state = _endpoint_state(message)
+    np.testing.assert_allclose(state.T_base_gripper, T, atol=1e-12)
+    np.testing.assert_array_equal(state.twist, [0.05, 0.0, 0.0, 0.0, 0.0, -0.3])     # [v (m/s); w (rad/s)] in base
+    assert state.stamp == 12.5
     message.twist.angular.z = float('inf')
     with pytest.raises(ValueError, match='non-finite'):
         _endpoint_state(message)

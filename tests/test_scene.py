@@ -71,7 +71,7 @@ def _set(d, path, value):
 
 
 INVALID = [
-    (('tabel',), {}, 'scene.tabel: unknown key'),
+    (('tabel',), {}, 'tabel: unknown key'),
     (('table',), [0.75, 0.0], 'table: must be a mapping'),
     (('table', 'top_z'), 'low', 'table.top_z: must be a number'),
     (('table', 'height'), 0.7, 'table.height: unknown key'),
@@ -82,7 +82,7 @@ INVALID = [
     (('objects', 0, 'shape'), 'circle', 'objects[0].shape: must be one of'),
     (('objects', 1, 'side'), DELETE, 'objects[1].side: missing'),
     (('objects', 1, 'side'), -0.04, 'objects[1].side: must be a positive number'),
-    (('objects', 0, 'side'), True, 'objects[0].side: must be a positive number'),
+    (('objects', 0, 'side'), True, 'objects[0].side: must be a number'),
     (('objects', 0, 'height'), 0.0, 'objects[0].height: must be a positive number'),
     (('objects', 0, 'color'), [0.1, 1.7, 0.1], 'objects[0].color: RGB components must be in 0..1'),
     (('objects', 0, 'color'), [0.1, 0.7, 0.1, 1.0], 'objects[0].color: must be a list of 3 numbers'),
@@ -112,7 +112,7 @@ def test_invalid_scene_names_the_key(path, value, message):
 
 
 def test_scene_must_be_a_mapping():
-    with pytest.raises(SceneError, match='^scene: must be a mapping'):
+    with pytest.raises(SceneError, match='^Scene: must be a mapping'):
         Scene.from_dict(['table'])
 
 
@@ -148,7 +148,8 @@ RESPAWN_INVALID = [
     (('respawn', 'poses', 1), [0.61, 0.11, 0.0], 'respawn.poses[1]: the block would overlap objects[1]'),
     (('respawn', 'delay'), -1.0, 'respawn.delay: must be a non-negative number'),
     (('respawn', 'object'), 2, 'respawn.object: 2 but the scene has 2 object(s)'),
-    (('respawn', 'object'), 0.5, 'respawn.object: must be a non-negative integer'),
+    (('respawn', 'object'), 0.5, 'respawn.object: must be an integer'),
+    (('respawn', 'object'), -1, 'respawn.object: must be a non-negative integer'),
 ]
 
 

@@ -13,7 +13,7 @@ import pytest
 from scipy.linalg import logm
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import servo
+from baxter_pnp import pick, servo, view
 from baxter_pnp import transforms as tf
 from baxter_pnp.camera import load_default_camera
 
@@ -237,7 +237,7 @@ def test_grasp_goal_picks_the_symmetric_yaw_closest_to_the_current_one(n):
     side = 0.025
     for current_yaw in np.linspace(-np.pi, np.pi, 37):
         current = tf.make_transform(Rotation.from_euler('z', current_yaw) * POINTING_DOWN, (0.6, 0.1, 0.2))
-        goal = servo.grasp_goal(T_base_block, side, grasp_depth=0.015, approach_height=0.05,
+        goal = pick.grasp_goal(T_base_block, side, grasp_depth=0.015, approach_height=0.05,
                                 symmetry_angle=symmetry, T_base_gripper_current=current)
         np.testing.assert_allclose(goal[:3, 2], [0, 0, -1], atol=1e-12)           # fingers down
         np.testing.assert_allclose(goal[:3, 3], [0.7, 0.2, -0.13 + 0.05 - 0.015], atol=1e-12)
@@ -254,12 +254,12 @@ def test_grasp_goal_picks_the_symmetric_yaw_closest_to_the_current_one(n):
 def test_grasp_goal_follows_a_tilted_block_and_rejects_too_wide_blocks():
     T_base_block = tf.make_transform(Rotation.from_euler('xyz', [0.1, -0.05, 0.4]), (0.7, 0.2, -0.13))
     current = tf.make_transform(POINTING_DOWN, (0.6, 0.1, 0.2))
-    goal = servo.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, current)
+    goal = pick.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, current)
     np.testing.assert_allclose(goal[:3, 2], -T_base_block[:3, 2], atol=1e-12)
     np.testing.assert_allclose(goal[:3, 3], T_base_block[:3, 3] - 0.015 * T_base_block[:3, 2], atol=1e-12)
-    assert servo.grasp_width(0.04, np.pi / 3) == pytest.approx(0.04 * math.sqrt(3))  # hexagon across flats
+    assert pick.grasp_width(0.04, np.pi / 3) == pytest.approx(0.04 * math.sqrt(3))  # hexagon across flats
     with pytest.raises(ValueError):
-        servo.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 3, current)
+        pick.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 3, current)
 
 
 def test_keep_in_view_step_keeps_the_block_in_the_image_where_look_and_move_loses_it():
@@ -269,18 +269,18 @@ def test_keep_in_view_step_keeps_the_block_in_the_image_where_look_and_move_lose
         [[0, 0, 0], [0.02, 0.02, 0], [-0.02, 0.02, 0], [-0.02, -0.02, 0], [0.02, -0.02, 0]]))
     # gripper pointing down, 0.1 m above and beside the grasp pose, yawed 44 deg: the block is near
     # the image's top-left corner, and rotating to the goal yaw swings it out of the image
-    goal = servo.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, tf.make_transform(POINTING_DOWN))
+    goal = pick.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, tf.make_transform(POINTING_DOWN))
     start = goal @ tf.make_transform(Rotation.from_euler('z', np.radians(44)))
     start[:3, 3] += (0.1, 0.05, 0.1)
-    assert np.array_equal(servo.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, start), goal)
-    assert servo.points_in_view(start @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20)
-    assert servo.points_in_view(goal @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20)
+    assert np.array_equal(pick.grasp_goal(T_base_block, 0.04, 0.015, 0.0, np.pi / 2, start), goal)
+    assert view.points_in_view(start @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20)
+    assert view.points_in_view(goal @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20)
 
     def run(step):
         T, frames_out = start, 0
         for steps in range(1, 60):
             T = step(T)
-            frames_out += not servo.points_in_view(T @ T_GRIPPER_CAMERA, block_points, camera)
+            frames_out += not view.points_in_view(T @ T_GRIPPER_CAMERA, block_points, camera)
             if np.linalg.norm(T[:3, 3] - goal[:3, 3]) < 0.002 and tf.rotation_angle_between(T, goal) < np.radians(0.5):
                 return steps, frames_out
         return None, frames_out
@@ -288,8 +288,8 @@ def test_keep_in_view_step_keeps_the_block_in_the_image_where_look_and_move_lose
     plain_steps, plain_out = run(lambda T: servo.look_and_move_step(T, goal, 0.35))
 
     def guarded(T):
-        T_next = servo.keep_in_view_step(T, goal, 0.35, block_points, camera, T_GRIPPER_CAMERA, margin_px=20)
-        assert servo.points_in_view(T_next @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20 - 1e-6)
+        T_next = view.keep_in_view_step(T, goal, 0.35, block_points, camera, T_GRIPPER_CAMERA, margin_px=20)
+        assert view.points_in_view(T_next @ T_GRIPPER_CAMERA, block_points, camera, margin_px=20 - 1e-6)
         return T_next
 
     guarded_steps, guarded_out = run(guarded)
@@ -384,10 +384,10 @@ def test_ray_hits_boxes_and_cylinders():
                      np.array([0.1, 0.1, 0.3]))     # axis along camera y, radius 0.1, 0.6 long
     rays = np.array([[0.0, 0.0, 1.0], [0.09, 0.0, 1.0], [0.11, 0.0, 1.0], [0.0, 0.19, 1.0], [0.0, 0.22, 1.0],
                      [0.0, 0.0, -1.0], [0.08, 0.08, 1.0]])
-    np.testing.assert_array_equal(servo.ray_hits(np.zeros(3), rays, box),
+    np.testing.assert_array_equal(view.ray_hits(np.zeros(3), rays, box),
                                   [True, True, False, True, False, False, True])
     # its square bounding box would take the corner ray (0.105, 0, 1): the cylinder does not
     rays = np.array([[0.0, 0.0, 1.0], [0.095, 0.28, 1.0], [0.0, 0.32, 1.0], [0.0, 0.36, 1.0], [0.105, 0.0, 1.0]])
-    np.testing.assert_array_equal(servo.ray_hits(np.zeros(3), rays, cylinder), [True, True, True, False, False])
+    np.testing.assert_array_equal(view.ray_hits(np.zeros(3), rays, cylinder), [True, True, True, False, False])
     bounding_box = Solid('box', cylinder.T, cylinder.half_extents)
-    assert servo.ray_hits(np.zeros(3), rays[4:], bounding_box)[0]
+    assert view.ray_hits(np.zeros(3), rays[4:], bounding_box)[0]

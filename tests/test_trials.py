@@ -1,5 +1,6 @@
-"""Batch-trials runner (baxter_pnp.sim.trials): random scenes, ground-truth scoring, summary, the soak's pure
-parts; one real trial and (when the application supports ``--cycles``) a two-cycle soak."""
+"""Batch-trials runner (baxter_pnp.bench: trials, trial_scenes, ground_truth, soak): random scenes,
+ground-truth scoring, summary, the soak's pure parts; one real trial and (when the application supports
+``--cycles``) a two-cycle soak."""
 import json
 import math
 import os
@@ -11,7 +12,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp.sim import trials
+from baxter_pnp.bench import ground_truth, soak, trial_scenes, trials
 from baxter_pnp.models import model_for
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.sim.launcher import RosMaster, free_port, project_python, run_script
@@ -19,12 +20,12 @@ from baxter_pnp.sim.scene import Scene, SceneError, Table
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
 
-GREEN = tuple(trials.COLOURS_RGB['green'])
+GREEN = tuple(trial_scenes.COLOURS_RGB['green'])
 
 
 def projected_top_face(obj, start_pose, top_z=-0.15):
     """Distorted pixels of a scene object's top-face vertices, via OpenCV (independent of CameraModel.project)."""
-    T_base_camera, _, camera, _ = trials.start_view(start_pose)
+    T_base_camera, _, camera, _ = trial_scenes.start_view(start_pose)
     T_base_block = make_transform(Rotation.from_euler('z', obj['yaw']), (*obj['xy'], top_z + obj['height']))
     points_camera = transform_points(invert(T_base_camera) @ T_base_block,
                                      model_for(obj['shape'], obj['side'], obj['height']).vertices)
@@ -36,7 +37,7 @@ def projected_top_face(obj, start_pose, top_z=-0.15):
 def test_random_scenes_put_a_pickable_green_square_in_view_with_distant_distractors(start_pose):
     sides, positions = [], []
     for seed in range(12):
-        scene = trials.random_scene(np.random.default_rng(seed), start_pose, distractors=2)
+        scene = trial_scenes.random_scene(np.random.default_rng(seed), start_pose, distractors=2)
         parsed = Scene.from_dict(scene)
         assert parsed.start == start_pose and len(parsed.objects) == 3
         target = scene['objects'][0]
@@ -51,46 +52,47 @@ def test_random_scenes_put_a_pickable_green_square_in_view_with_distant_distract
             assert (obj['shape'], tuple(obj['color'])) != ('square', GREEN)
         centres = np.array([obj['xy'] for obj in scene['objects']])
         gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2)[np.triu_indices(3, 1)]
-        assert np.all(gaps >= trials.DISTRACTOR_MIN_DISTANCE)
+        assert np.all(gaps >= trial_scenes.DISTRACTOR_MIN_DISTANCE)
         sides.append(target['side'])
         positions.append(target['xy'])
     assert np.ptp(sides) > 0.01                              # sizes spread over the range
     assert np.all(np.ptp(positions, axis=0) > 0.1)           # positions spread over the view
-    again = trials.random_scene(np.random.default_rng(3), start_pose, distractors=2)
-    assert again == trials.random_scene(np.random.default_rng(3), start_pose, distractors=2)
+    again = trial_scenes.random_scene(np.random.default_rng(3), start_pose, distractors=2)
+    assert again == trial_scenes.random_scene(np.random.default_rng(3), start_pose, distractors=2)
 
 
 def table_point_seen_at(pixel, start_pose, plane_z=-0.13):
     """Base (x, y) of the table-top point (plane z = ``plane_z``) seen at a distorted ``pixel`` from a start pose."""
-    T_base_camera, _, camera, _ = trials.start_view(start_pose)
+    T_base_camera, _, camera, _ = trial_scenes.start_view(start_pose)
     ray = T_base_camera[:3, :3] @ np.append(camera.undistort_points(np.array([pixel], float))[0], 1.0)
     return (T_base_camera[:3, 3] + ray * (plane_z - T_base_camera[2, 3]) / ray[2])[:2]
 
 
 def test_view_and_reach_checks_reject_what_the_arm_cannot_see_or_reach():
-    T_base_camera, _, camera, _ = trials.start_view('down')
-    clearance = trials.hand_clearance_px('down')
+    T_base_camera, _, camera, _ = trial_scenes.start_view('down')
+    clearance = trial_scenes.rendered_hand_clearance_px('down')
     model = model_for('square', 0.04)
 
     def visible(xy):
-        return trials.top_face_in_view(trials.block_pose(xy, 0.3, -0.15), model, T_base_camera, camera, 20, clearance)
+        return trial_scenes.top_face_in_view(trial_scenes.block_pose(xy, 0.3, -0.15), model, T_base_camera, camera,
+                                             20, clearance)
     assert clearance.shape == (400, 640) and 0.03 < np.mean(clearance == 0) < 0.2     # the fingers hide the top
     centre = table_point_seen_at((320, 250), 'down')
-    assert visible(centre) and trials.pickable(trials.block_pose(centre, 0.3, -0.15), 0.04, 'down')
+    assert visible(centre) and trial_scenes.pickable(trial_scenes.block_pose(centre, 0.3, -0.15), 0.04, 'down')
     assert not visible(table_point_seen_at((320, 420), 'down'))        # beyond the bottom border
     assert not visible(table_point_seen_at((245, 70), 'down'))         # behind a finger
-    far = trials.block_pose((1.15, -0.6), 0.0, -0.15)                  # on the table, out of reach
-    assert trials.on_table(far, model, Table()) and not trials.pickable(far, 0.04, 'angled')
+    far = trial_scenes.block_pose((1.15, -0.6), 0.0, -0.15)                  # on the table, out of reach
+    assert trial_scenes.on_table(far, model, Table()) and not trial_scenes.pickable(far, 0.04, 'angled')
 
 
 @pytest.mark.parametrize('start_pose', ['down', 'angled'])
 def test_the_fake_renders_the_random_target_unoccluded_where_it_is_projected(start_pose):
     for seed in range(3):
-        scene = trials.random_scene(np.random.default_rng(seed), start_pose, distractors=2)
+        scene = trial_scenes.random_scene(np.random.default_rng(seed), start_pose, distractors=2)
         world = SimWorld(Scene.from_dict(scene))
         world.command_gripper('left', 100.0, velocity_percent=100.0)      # as the application's first look
         world.step(240)
-        _, _, camera, _ = trials.start_view(start_pose)
+        _, _, camera, _ = trial_scenes.start_view(start_pose)
         image = world.render_camera('left_hand_camera', camera, np.random.default_rng(seed)).astype(int)
         green = (image[:, :, 1] > image[:, :, 0] + 40) & (image[:, :, 1] > image[:, :, 2] + 40)
         pixels, _, _ = projected_top_face(scene['objects'][0], start_pose)
@@ -118,10 +120,10 @@ def test_score_measures_the_lift_and_the_centring_in_the_gripper_frame():
 def test_pre_close_sample_is_the_last_one_before_the_first_close():
     T = np.eye(4)
     positions = [0.0, 40.0, 100.0, 100.0, 99.0, 97.0, 93.0, 93.0, 100.0, 50.0]    # calibrate, open, close, ...
-    samples = [trials.GroundTruthSample(0.1 * k, T * k, T, p) for k, p in enumerate(positions)]
-    assert trials.pre_close_sample(samples) is samples[4]      # 97 is the first point more than 2 below 100
-    assert trials.pre_close_sample(samples[:5]) is None
-    assert trials.pre_close_sample(samples[:2]) is None          # calibrating is not closing
+    samples = [ground_truth.GroundTruthSample(0.1 * k, T * k, T, p) for k, p in enumerate(positions)]
+    assert ground_truth.pre_close_sample(samples) is samples[4]      # 97 is the first point more than 2 below 100
+    assert ground_truth.pre_close_sample(samples[:5]) is None
+    assert ground_truth.pre_close_sample(samples[:2]) is None          # calibrating is not closing
 
 
 def test_summary_counts_verified_picks_and_labels_failures(tmp_path):
@@ -152,7 +154,7 @@ def test_summary_counts_verified_picks_and_labels_failures(tmp_path):
 
 
 def test_one_real_pbvs_trial_is_a_verified_pick(ros_node, ros_master, tmp_path):
-    scene = trials.random_scene(np.random.default_rng(7), 'down')
+    scene = trial_scenes.random_scene(np.random.default_rng(7), 'down')
     row = trials.run_trial(ros_master, scene, 'pbvs', 'down', 0.35, str(tmp_path / 'trial'), timeout=150.0, seed=7)
     assert (row['returncode'], row['app_success'], row['failure_reason']) == (0, True, None), row
     assert row['lifted'] and row['rise_mm'] > 50.0 and row['verified']
@@ -175,11 +177,11 @@ def test_run_script_captures_the_log_and_interrupts_a_script_that_overruns(tmp_p
 
 # ============================================================================================ faults, distractors
 def test_same_colour_distractor_and_faults_go_into_the_scene(tmp_path):
-    faults = trials.load_faults_mapping(os.path.join(PACKAGE_ROOT, 'config', 'faults_batch.yaml'))
+    faults = trial_scenes.load_faults_mapping(os.path.join(PACKAGE_ROOT, 'config', 'faults_batch.yaml'))
     assert faults == {'camera': {'drop_probability': 0.2, 'latency': 0.1}}
     for seed in range(6):
-        scene = trials.random_scene(np.random.default_rng(seed), 'down', distractors=1, same_colour_distractor=True,
-                                    faults=faults)
+        scene = trial_scenes.random_scene(np.random.default_rng(seed), 'down', distractors=1,
+                                          same_colour_distractor=True, faults=faults)
         parsed = Scene.from_dict(scene)
         assert (parsed.faults.camera.drop_probability, parsed.faults.camera.latency) == (0.2, 0.1)
         assert len(scene['objects']) == 3 and scene['objects'][0]['shape'] == 'square'
@@ -187,13 +189,13 @@ def test_same_colour_distractor_and_faults_go_into_the_scene(tmp_path):
         assert len(same) == 1 and same[0]['shape'] in ('triangle', 'pentagon', 'hexagon'), scene['objects']
         pixels, depths, camera = projected_top_face(same[0], 'down')
         assert np.all(depths > 0) and np.all(pixels >= 19.9)
-    clean = trials.random_scene(np.random.default_rng(seed), 'down', distractors=1)
+    clean = trial_scenes.random_scene(np.random.default_rng(seed), 'down', distractors=1)
     assert 'faults' not in clean and Scene.from_dict(clean).faults.summary() == 'none'
     assert clean['objects'] == scene['objects'][:2]          # same seed: same scene, plus the extra block
     bad = tmp_path / 'bad.yaml'
     bad.write_text(yaml.safe_dump({'faults': {'camera': {'drop_probability': 1.5}}}))
     with pytest.raises(SceneError, match=r'faults.camera.drop_probability: must be a probability'):
-        trials.load_faults_mapping(str(bad))
+        trial_scenes.load_faults_mapping(str(bad))
 
 
 def test_rows_carry_their_conditions_and_are_summarised_per_condition(tmp_path, capsys):
@@ -226,28 +228,28 @@ def test_rows_carry_their_conditions_and_are_summarised_per_condition(tmp_path, 
 
 # ============================================================================================ soak (pure parts)
 def test_soak_poses_are_pickable_in_view_and_away_from_the_place_position():
-    place = trials.SOAK_PLACE_XY
-    T_base_camera, _, camera, _ = trials.start_view('down')
-    clearance = trials.hand_clearance_px('down')
-    side, poses = trials.soak_poses(np.random.default_rng(4), 'down', 6, place)
+    place = soak.SOAK_PLACE_XY
+    T_base_camera, _, camera, _ = trial_scenes.start_view('down')
+    clearance = trial_scenes.rendered_hand_clearance_px('down')
+    side, poses = soak.soak_poses(np.random.default_rng(4), 'down', 6, place)
     assert 0.03 <= side <= 0.05 and len(poses) == 6 and len(set(poses)) == 6
     model = model_for('square', side)
     for x, y, yaw in poses:
-        assert np.hypot(x - place[0], y - place[1]) >= trials.SOAK_PLACE_CLEARANCE
-        T = trials.block_pose((x, y), yaw, -0.15)
-        assert trials.top_face_in_view(T, model, T_base_camera, camera, 19.9, clearance)
-        assert trials.pickable(T, side, 'down')
-    assert trials.soak_poses(np.random.default_rng(4), 'down', 6, place) == (side, poses)
-    near = trials.soak_poses(np.random.default_rng(4), 'down', 30, (0.62, 0.26))[1]    # mid-view place position
-    assert min(np.hypot(x - 0.62, y - 0.26) for x, y, _ in near) >= trials.SOAK_PLACE_CLEARANCE
-    scene = Scene.from_dict(trials.soak_scene(side, poses, 'down', faults={'camera': {'latency': 0.1}}))
+        assert np.hypot(x - place[0], y - place[1]) >= soak.SOAK_PLACE_CLEARANCE
+        T = trial_scenes.block_pose((x, y), yaw, -0.15)
+        assert trial_scenes.top_face_in_view(T, model, T_base_camera, camera, 19.9, clearance)
+        assert trial_scenes.pickable(T, side, 'down')
+    assert soak.soak_poses(np.random.default_rng(4), 'down', 6, place) == (side, poses)
+    near = soak.soak_poses(np.random.default_rng(4), 'down', 30, (0.62, 0.26))[1]    # mid-view place position
+    assert min(np.hypot(x - 0.62, y - 0.26) for x, y, _ in near) >= soak.SOAK_PLACE_CLEARANCE
+    scene = Scene.from_dict(soak.soak_scene(side, poses, 'down', faults={'camera': {'latency': 0.1}}))
     (block,) = scene.objects
     assert (block.shape, block.color, block.side) == ('square', GREEN, round(side, 5))
     assert (block.xy, block.yaw) == (poses[0][:2], poses[0][2])
     assert scene.respawn.poses == tuple(poses[1:]) and scene.respawn.object == 0 and scene.respawn.delay == 2.0
     assert scene.faults.camera.latency == 0.1 and scene.start == 'down'
     with pytest.raises(ValueError, match='at least two poses'):
-        trials.soak_scene(side, poses[:1], 'down')
+        soak.soak_scene(side, poses[:1], 'down')
 
 
 STATUS = '''Name:\tpython
@@ -272,8 +274,8 @@ def fake_proc(root, processes):
 
 
 def test_memory_of_the_python_process_in_a_process_tree(tmp_path):
-    assert trials.vm_rss_mib(STATUS) == 200.0
-    assert trials.vm_rss_mib('Name:\tzombie\nState:\tZ (zombie)\n') is None
+    assert soak.vm_rss_mib(STATUS) == 200.0
+    assert soak.vm_rss_mib('Name:\tzombie\nState:\tZ (zombie)\n') is None
     proc = fake_proc(tmp_path, {
         100: (1, 'bash', 4096),                  # the launched wrapper
         101: (100, 'python3', 307200),           # the application's interpreter: 300 MiB
@@ -281,31 +283,31 @@ def test_memory_of_the_python_process_in_a_process_tree(tmp_path):
         103: (101, 'sh', 900000),                # not Python
         200: (1, 'python3', 999999),             # not in the tree
         201: (200, 'python', None)})             # a zombie
-    assert sorted(trials.process_tree(100, proc)) == [100, 101, 102, 103]
-    assert trials.python_rss_mib(100, proc) == (101, 300.0)
-    assert trials.python_rss_mib(102, proc) == (102, 10.0)
-    assert trials.python_rss_mib(201, proc) == (None, None)
-    assert trials.python_rss_mib(999, proc) == (None, None)       # gone
+    assert sorted(soak.process_tree(100, proc)) == [100, 101, 102, 103]
+    assert soak.python_rss_mib(100, proc) == (101, 300.0)
+    assert soak.python_rss_mib(102, proc) == (102, 10.0)
+    assert soak.python_rss_mib(201, proc) == (None, None)
+    assert soak.python_rss_mib(999, proc) == (None, None)       # gone
 
 
 def test_soak_cycles_are_scored_by_the_lifts_in_their_window():
     rest_z = -0.13
     heights = [0, 0, 0.06, 0.1, 0.06, 0.0, 0.0, 0.04, 0.0, 0.0, 0.07, 0.08, 0.0, 0.0, 0.0]   # rise above rest (m)
-    samples = [trials.GroundTruthSample(float(t), make_transform(None, (0.6, 0.2, rest_z + h)), np.eye(4), 100.0)
+    samples = [ground_truth.GroundTruthSample(float(t), make_transform(None, (0.6, 0.2, rest_z + h)), np.eye(4), 100.0)
                for t, h in enumerate(heights)]
-    lifts = trials.lift_times(samples, rest_z)
+    lifts = ground_truth.lift_times(samples, rest_z)
     assert lifts == [2.0, 10.0]                  # 4 cm is not a lift; each lift counted once, when it starts
     results = [{'success': True, 'time_s': 5.0, 'failure_reason': None},      # lifted at 2: verified
                {'success': True, 'time_s': 6.0, 'failure_reason': None},      # no lift in (6, 9]: not verified
                {'success': False, 'time_s': 7.0, 'failure_reason': 'grasp_missed'},   # lifted at 10, app failed
                {'success': True, 'time_s': 4.0, 'failure_reason': None}]      # no lift in (12, 14]: not verified
-    rows = trials.score_cycles(results, [6.0, 9.0, 12.0, 14.0], lifts, start=1.0)
+    rows = soak.score_cycles(results, [6.0, 9.0, 12.0, 14.0], lifts, start=1.0)
     assert [(r['cycle'], r['lifted'], r['verified']) for r in rows] == [
         (1, True, True), (2, False, False), (3, True, False), (4, False, False)]
     assert [r['cycle_sim_s'] for r in rows] == [5.0, 3.0, 3.0, 2.0]
     for row, (app, fake) in zip(rows, [(100.0, 150.0), (None, None), (104.0, 150.0), (110.0, 153.0)]):
         row.update(app_rss_mib=app, fake_rss_mib=fake)
-    summary = trials.summarise_soak(rows, cycles=5)
+    summary = soak.summarise_soak(rows, cycles=5)
     assert (summary['finished'], summary['app_successes'], summary['verified']) == (4, 3, 1)
     assert summary['app_success_pct'] == 60.0 and summary['verified_pct'] == 20.0
     assert summary['failures'] == {'not_lifted': 2, 'grasp_missed': 1, 'not_finished': 1}
@@ -313,14 +315,14 @@ def test_soak_cycles_are_scored_by_the_lifts_in_their_window():
     assert summary['app_memory'] == {'start_mib': 100.0, 'start_cycle': 1, 'end_mib': 110.0, 'end_cycle': 4,
                                      'growth_pct': pytest.approx(10.0)}
     assert summary['fake_memory']['growth_pct'] == pytest.approx(2.0)
-    text = trials.format_soak(summary)
+    text = soak.format_soak(summary)
     assert 'app-reported successes 3/5 (60 %), verified by ground truth 1/5 (20 %)' in text
     assert '100 MiB after cycle 1 -> 110 MiB after cycle 4 (+10.0 %)' in text
 
 
 def test_soak_options():
     args = trials.parse_args(['--soak', '5'])
-    assert (args.mode, args.start_pose, args.place) == ('pbvs', 'down', list(trials.SOAK_PLACE_XY))
+    assert (args.mode, args.start_pose, args.place) == ('pbvs', 'down', list(soak.SOAK_PLACE_XY))
     args = trials.parse_args(['--soak', '5', '--mode', 'ibvs', '--start-pose', 'angled', '--place', '0.6,0.1'])
     assert (args.mode, args.start_pose, args.place) == ('ibvs', 'angled', [0.6, 0.1])
     assert (trials.parse_args([]).mode, trials.parse_args([]).start_pose, trials.parse_args([]).place) == (
@@ -341,8 +343,8 @@ def app_has_cycles():
 def test_a_two_cycle_soak_in_one_session(ros_node, ros_master, tmp_path):
     if not app_has_cycles():
         pytest.skip('pick_square.py does not accept --cycles yet (the soak needs it)')
-    rows, summary = trials.run_soak(ros_master, 2, 'pbvs', 'down', trials.SOAK_PLACE_XY, str(tmp_path), seed=0,
-                                    timeout_per_cycle=150.0)
+    rows, summary = soak.run_soak(ros_master, 2, 'pbvs', 'down', soak.SOAK_PLACE_XY, str(tmp_path), seed=0,
+                                  timeout_per_cycle=150.0)
     assert (summary['returncode'], summary['timed_out']) == (0, False), summary
     assert [(r['app_success'], r['lifted'], r['verified']) for r in rows] == [(True, True, True)] * 2, rows
     assert summary['respawns'] >= 1                  # the first block was put back at the second pose

@@ -1,6 +1,7 @@
 """vision: the thesis stages one by one, shape classification, top-face isolation and sub-pixel
 vertex accuracy on rendered images (synthetic.render_block_scene), bad inputs, target selection."""
 import dataclasses
+import re
 
 import cv2
 import numpy as np
@@ -57,16 +58,19 @@ def test_default_config_is_the_thesis_pipeline(config):
 
 
 @pytest.mark.parametrize('change, message', [
-    ({'gamma_typo': 0.6}, 'unknown key'),
-    ({'gamma': 'high'}, 'must be a number'),
-    ({'colours': {'green': [[[50, 100], [70, 255, 255]]]}}, 'green'),
-    ({'colours': {'red': [[[10, 100, 100], [5, 255, 255]]]}}, 'red'),
-    ({'subpixel': {'enabled': 'yes'}}, 'true or false'),
+    ({'gamma_typo': 0.6}, 'gamma_typo: unknown key'),
+    ({'gamma': 'high'}, 'gamma: must be a number'),
+    ({'gamma': 0}, 'gamma: must be > 0'),
+    ({'colours': {'green': [[[50, 100], [70, 255, 255]]]}}, 'colours.green: each bound needs 3 values'),
+    ({'colours': {'red': [[[10, 100, 100], [5, 255, 255]]]}}, 'colours.red: range'),
+    ({'subpixel': {'enabled': 'yes'}}, 'subpixel.enabled: must be true or false'),
+    ({'subpixel': {'passes': 1.5}}, r'subpixel.passes: must be an integer \(got 1.5\)'),
+    ({'roi': {'downsample': 0}}, 'roi.downsample: must be >= 1'),
 ])
 def test_config_errors_name_the_bad_key(tmp_path, change, message):
     path = tmp_path / 'vision.yaml'
     path.write_text(yaml.safe_dump(change))
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=f'^{re.escape(str(path))}: {message}'):
         vision.VisionConfig.from_yaml(str(path))
 
 

@@ -57,7 +57,7 @@ def link_pose(body, link_index, client):
     return from_xyz_quat(state[4], state[5])
 
 
-def pose_error(T_current, T_target):
+def pose_difference(T_current, T_target):
     """(6,) [position error (m); rotation vector (rad)] taking ``T_current`` to ``T_target``, in base."""
     rotation = Rotation.from_matrix(T_target[:3, :3] @ T_current[:3, :3].T).as_rotvec()
     return np.concatenate([T_target[:3, 3] - T_current[:3, 3], rotation])
@@ -257,7 +257,7 @@ class ArmKinematics(PyBulletClientOwner):
         best_error = np.inf
         stalled = 0
         for _ in range(max_iterations):
-            error = pose_error(self.fk(q, frame), T_target)
+            error = pose_difference(self.fk(q, frame), T_target)
             position_error, rotation_error = np.linalg.norm(error[:3]), np.linalg.norm(error[3:])
             if position_error < 0.1 * pos_tol and rotation_error < 0.1 * rot_tol:
                 break
@@ -270,7 +270,7 @@ class ArmKinematics(PyBulletClientOwner):
             step = J.T @ np.linalg.solve(J @ J.T + damping ** 2 * np.eye(6), error)
             step *= min(1.0, max_step / np.max(np.abs(step)))
             q = np.clip(q + step, self.lower, self.upper)
-        error = pose_error(self.fk(q, frame), T_target)
+        error = pose_difference(self.fk(q, frame), T_target)
         if np.linalg.norm(error[:3]) <= pos_tol and np.linalg.norm(error[3:]) <= rot_tol:
             return q
         return None

@@ -85,3 +85,10 @@ class Plane:
     def signed_distance(self, points):
         """Signed distance (m) of a point (3,) or points (N, 3) to the plane, positive on the normal's side."""
         return np.asarray(points, dtype=float) @ self.normal - self.offset
+
+
+def table_plane_in_camera(T_base_camera, table_top_z):
+    """The table top (z = ``table_top_z`` in base, normal +z) as a ``Plane`` in the camera frame."""
+    R, t = T_base_camera[:3, :3], T_base_camera[:3, 3]
+    normal_base = np.array([0.0, 0.0, 1.0])
+    return Plane(R.T @ normal_base, float(table_top_z - normal_base @ t))

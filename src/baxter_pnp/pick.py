@@ -1,7 +1,7 @@
 """The pick-and-place task, pure: block pose and arm pose in -> next arm target (or camera twist) out.
 
-No ROS here (``application.py`` is the ROS edge). Frames: ``base`` (Baxter's), ``gripper`` (the
-``<side>_gripper`` tip frame: z along the fingers, fingers close along y), ``camera`` (the hand
+No ROS here (``pick_app.py`` sequences it on the task layer, ``baxter_pnp.task``). Frames: ``base``
+(Baxter's), ``gripper`` (the ``<side>_gripper`` tip frame: z along the fingers, fingers close along y), ``camera`` (the hand
 camera's optical frame), ``block`` (docs/ARCHITECTURE.md: origin at the top-face centre, z up).
 Metres, radians, pixels.
 
@@ -10,24 +10,25 @@ aligned to the block's faces, ``hover_height`` above the *grasp* pose (fingertip
 below the top face), to which the arm then descends and closes.
 """
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import List, NamedTuple, Optional
 
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import models, servo
-from baxter_pnp.transforms import invert, make_transform, transform_points
+from baxter_pnp import models, servo, view
+from baxter_pnp.params import Parameters
+from baxter_pnp.transforms import invert, make_transform, pose_error, transform_points
 
 MODES = ('pbvs', 'ibvs', 'hybrid')
 
 
 @dataclass
-class PickConfig:
-    """Every parameter of the pick application (metres, radians, seconds, pixels). YAML: config/pick_square.yaml."""
+class PickConfig(Parameters):
+    """What to pick and how (metres, radians, pixels): the pure task's parameters. The robot session's (arm,
+    camera mode, table height, timeouts, outputs) are ``task.settings.SessionConfig``; one YAML holds both:
+    config/pick_square.yaml."""
 
-    side: str = 'left'                      # arm
     shape: str = 'square'                   # target shape (triangle, square, pentagon, hexagon)
     side_length: float = 0.04               # block side (m)
     block_height: float = 0.02              # block height (m)
@@ -35,9 +36,6 @@ class PickConfig:
     mode: str = 'pbvs'                      # pbvs (thesis look-and-move) | ibvs | hybrid (2.5D)
     step_fraction: float = 0.35             # PBVS: fraction of the remaining displacement per step (thesis 0.35, 0.12)
     start_pose: str = 'down'                # a name in config/start_poses.yaml (down, angled, neutral)
-    table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
-    tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
-                                            # paddles reach 3.5 mm beyond the tip plane
     hover_height: float = 0.06              # the pre-grasp (hover) pose is this far above the grasp pose (m)
     grasp_depth: float = 0.012              # fingertips below the top face when closing (m)
     position_tolerance: float = 0.002       # pre-grasp reached when the estimated error is below this (m) ...
@@ -53,15 +51,7 @@ class PickConfig:
     place_xy: Optional[List[float]] = None  # put the block down at this table position (base x, y; m)
     place_clearance: float = 0.004          # release the block this far above the table (m)
     max_grasp_attempts: int = 2             # re-servo and regrasp after a miss
-    cycles: int = 1                         # blocks to pick (and place) one after the other in one run
-    next_block_timeout: float = 30.0        # between cycles: wait this long (s) for the next block to appear
-    save_views: bool = False                # save every annotated camera view in the output directory (views/)
-    speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
-    resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
-    fps: int = 20                           # hand camera rate (Hz)
     estimator: str = 'sqp'                  # pose estimator: sqp | ippe | sqpnp
-    camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
-                                            # camera_info; scaled to the camera mode if calibrated at another size
     gain: List[float] = field(default_factory=lambda: [1.5, 0.4, 10.0])  # IBVS/hybrid adaptive gain (l0, linf, l0')
     max_linear_speed: float = 0.08          # IBVS/hybrid: camera speed bound (m/s)
     max_angular_speed: float = 0.5          # IBVS/hybrid: camera angular speed bound (rad/s)
@@ -71,73 +61,29 @@ class PickConfig:
     view_tolerance_px: float = 8.0          # ... reached when the RMS feature error is below this (px)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
     max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
-    waypoint_spacing: float = 0.02          # IK along straight Cartesian paths: waypoints this far apart (m)
-    timeout: float = 90.0                   # whole run (s of robot time)
-    stream_max_age: float = 2.0             # a robot topic silent for longer (wall s) is lost
-    frame_timeout: float = 5.0              # a look waits this long (wall s) for a camera frame
-    robot_wait_timeout: float = 30.0        # after lost streams, wait this long (wall s) for the robot to return
-    max_recoveries: int = 2                 # times a run resumes after the robot came back
-
-    @classmethod
-    def from_dict(cls, values):
-        """PickConfig from a dict; unknown keys and bad values raise ValueError naming the key."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError('unknown pick parameter(s) %s (known: %s)' % (unknown, sorted(known)))
-        config = cls(**values)
-        config.validate()
-        return config
-
-    @classmethod
-    def from_yaml(cls, path):
-        with open(path) as f:
-            values = yaml.safe_load(f) or {}
-        if not isinstance(values, dict):
-            raise ValueError('%s: expected a mapping of pick parameters' % path)
-        try:
-            return cls.from_dict(values)
-        except (TypeError, ValueError) as error:
-            raise ValueError('%s: %s' % (path, error)) from None
 
     def validate(self):
-        def require(condition, key, what):
-            if not condition:
-                raise ValueError('%s: %s (got %r)' % (key, what, getattr(self, key)))
-        require(self.side in ('left', 'right'), 'side', "must be 'left' or 'right'")
+        require = self.require
         require(self.shape in models.SHAPES, 'shape', 'must be one of %s' % sorted(models.SHAPES))
         require(self.mode in MODES, 'mode', 'must be one of %s' % (MODES,))
-        for key in ('side_length', 'block_height', 'hover_height', 'tip_margin', 'position_tolerance', 'yaw_tolerance',
-                    'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
-                    'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'timeout', 'stream_max_age',
-                    'frame_timeout', 'robot_wait_timeout', 'view_depth', 'view_tolerance_px', 'max_residual_px',
-                    'max_height_error', 'waypoint_spacing', 'next_block_timeout'):
-            value = getattr(self, key)
-            require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, key,
-                    'must be a positive number')
+        self.require_positive('side_length', 'block_height', 'hover_height', 'position_tolerance', 'yaw_tolerance',
+                              'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
+                              'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'view_depth',
+                              'view_tolerance_px', 'max_residual_px', 'max_height_error', 'max_steps',
+                              'max_grasp_attempts')
         require(0.0 < self.step_fraction <= 1.0, 'step_fraction', 'must be in (0, 1]')
-        require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
         require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
-        require(self.block_height - self.grasp_depth >= self.tip_margin, 'grasp_depth',
-                'leaves the gripper tip closer to the table than tip_margin')
-        require(isinstance(self.table_top_z, (int, float)) and math.isfinite(self.table_top_z), 'table_top_z',
-                'must be a number')
+        require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),
                 'place_xy', 'must be [x, y] in metres or null')
         require(len(self.gain) == 3 and self.gain[0] >= self.gain[1] > 0, 'gain',
                 'must be [gain at 0, gain at infinity, slope at 0] with gain at 0 >= gain at infinity > 0')
         require(self.estimator in ('sqp', 'ippe', 'sqpnp'), 'estimator', 'must be sqp, ippe or sqpnp')
-        require(isinstance(self.save_views, bool), 'save_views', 'must be true or false')
-        for key in ('max_steps', 'cycles'):
-            require(isinstance(getattr(self, key), int) and getattr(self, key) > 0, key, 'must be a positive integer')
 
     @property
     def model(self):
         return models.model_for(self.shape, self.side_length, self.block_height)
-
-    def as_dict(self):
-        return asdict(self)
 
 
 @dataclass
@@ -178,31 +124,77 @@ class PickResult:
 
 # ----------------------------------------------------------------------------------------------- geometry
 
-def table_plane_in_camera(T_base_camera, table_top_z):
-    """The table top (z = ``table_top_z`` in base, normal +z) as a ``models.Plane`` in the camera frame."""
-    R, t = T_base_camera[:3, :3], T_base_camera[:3, 3]
-    normal_base = np.array([0.0, 0.0, 1.0])
-    return models.Plane(R.T @ normal_base, float(table_top_z - normal_base @ t))
+# Jaw gap of the electric gripper with the simulator's fingers (extended_narrow, slot 2, paddle tips),
+# fully open (m). See shared/reference/baxter_kinematics.md section 3.
+ELECTRIC_GRIPPER_MAX_OPENING = 0.0577
+
+
+def grasp_width(side_length, symmetry_angle):
+    """Jaw gap (m) needed to grasp a regular polygonal prism across the block's x axis.
+
+    Even n: across two parallel faces, ``2 * apothem``; odd n: from a face to the opposite vertex,
+    ``apothem + circumradius``. ``n = 2 pi / symmetry_angle``.
+    """
+    n = int(round(2.0 * np.pi / symmetry_angle))
+    apothem = side_length / (2.0 * np.tan(np.pi / n))
+    circumradius = side_length / (2.0 * np.sin(np.pi / n))
+    return 2.0 * apothem if n % 2 == 0 else apothem + circumradius
+
+
+def grasp_goal(T_base_block, side_length, grasp_depth, approach_height, symmetry_angle, T_base_gripper_current,
+               max_opening=ELECTRIC_GRIPPER_MAX_OPENING):
+    """Gripper pose (``left_gripper`` in base) to grasp the block, or to hover above it.
+
+    - Gripper z = -block z (fingers pointing down, toward the table).
+    - Fingers close along the block's x axis (the normal of the face perpendicular to +x, see the
+      block frame in docs/ARCHITECTURE.md) or one of its symmetric copies: the block is invariant under
+      rotations by ``symmetry_angle`` (2 pi / n, rad) about its z and a parallel-jaw gripper under
+      pi about its own z, so the candidate yaws are ``k * symmetry_angle`` and ``k * symmetry_angle + pi``.
+      The candidate with the smallest rotation from ``T_base_gripper_current`` is chosen (the thesis
+      kept the start orientation instead, which caused occlusion and collisions).
+    - Origin (fingertip plane) ``grasp_depth`` (m) below the top face's centre, then raised by
+      ``approach_height`` (m) along the block's z (0 for the grasp itself, > 0 for a pre-grasp pose).
+
+    ``side_length`` (m) gives the jaw gap needed (``grasp_width``); a ``ValueError`` is raised if it
+    exceeds ``max_opening`` (m; None disables the check).
+    """
+    width = grasp_width(side_length, symmetry_angle)
+    if max_opening is not None and width > max_opening:
+        raise ValueError('block of side %.3f m needs a %.3f m jaw gap, more than the gripper opening %.3f m'
+                         % (side_length, width, max_opening))
+    best = grasp_orientations(T_base_block, symmetry_angle, T_base_gripper_current)[0]
+    position = T_base_block[:3, 3] + T_base_block[:3, 2] * (approach_height - grasp_depth)
+    return make_transform(best, position)
+
+
+def grasp_orientations(T_base_block, symmetry_angle, T_base_gripper_current):
+    """The distinct gripper orientations (``Rotation`` s, base) that grasp the block across a pair of faces
+    (see :func:`grasp_goal`), the smallest rotation from ``T_base_gripper_current`` first."""
+    R_base_block = Rotation.from_matrix(T_base_block[:3, :3])
+    # gripper x = block y, gripper y = block x (closing axis), gripper z = -block z
+    R_block_gripper = Rotation.from_euler('z', np.pi / 2) * Rotation.from_euler('x', np.pi)
+    n = int(round(2.0 * np.pi / symmetry_angle))
+    yaws = np.concatenate([np.arange(n) * symmetry_angle, np.arange(n) * symmetry_angle + np.pi])
+    R_current = Rotation.from_matrix(T_base_gripper_current[:3, :3])
+    candidates = []
+    for R in sorted((R_base_block * Rotation.from_euler('z', yaw) * R_block_gripper for yaw in yaws),
+                    key=lambda R: (R_current.inv() * R).magnitude()):
+        if all((R.inv() * other).magnitude() > 1e-6 for other in candidates):
+            candidates.append(R)
+    return candidates
 
 
 def hover_pose(T_base_block, config, T_base_gripper):
-    """Pre-grasp gripper pose: centred ``hover_height`` above the block, faces aligned (servo.grasp_goal)."""
+    """Pre-grasp gripper pose: centred ``hover_height`` above the block, faces aligned (grasp_goal)."""
     model = config.model
-    return servo.grasp_goal(T_base_block, config.side_length, config.grasp_depth, config.hover_height,
+    return grasp_goal(T_base_block, config.side_length, config.grasp_depth, config.hover_height,
                             model.symmetry_angle, T_base_gripper)
 
 
 def grasp_pose(T_base_block, config, T_base_gripper):
     """Gripper pose to close at: fingertips ``grasp_depth`` below the top face, faces aligned."""
-    return servo.grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
+    return grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
                             config.model.symmetry_angle, T_base_gripper)
-
-
-def pose_error(T_current, T_goal):
-    """(translation error (m), rotation error (rad)) between two poses."""
-    translation = float(np.linalg.norm(T_goal[:3, 3] - T_current[:3, 3]))
-    rotation = float(Rotation.from_matrix(T_current[:3, :3].T @ T_goal[:3, :3]).magnitude())
-    return translation, rotation
 
 
 def converged(T_current, T_goal, config):
@@ -217,8 +209,8 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
 
     Moves ``step_fraction`` of the remaining displacement toward the goal, bounded in translation and
     rotation, and shortened so that the block's vertices stay ``view_margin_px`` inside the image and,
-    given the hand's ``clearance_px`` map (``servo.hand_clearance_px``), clear of the fingers after the move
-    (``servo.keep_in_view_step``). Within ``snap_distance`` of the goal the step goes all the way, which
+    given the hand's ``clearance_px`` map (``view.hand_clearance_px``), clear of the fingers after the move
+    (``view.keep_in_view_step``). Within ``snap_distance`` of the goal the step goes all the way, which
     ends the exponential tail. The goal is the hover pose ``T_base_hover``, unless the straight path there
     would take the block behind a finger (at the hover pose the block sits between the fingers, at the top
     of the image): then it is :func:`view_pose` (at ``view_depth``, default ``config.view_depth``), from
@@ -227,12 +219,12 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     """
     vertices_base = transform_points(T_base_block, config.model.vertices)
     T_base_goal = T_base_hover
-    if clearance_px is not None and not servo.path_in_view(T_base_gripper, T_base_hover, vertices_base, camera,
+    if clearance_px is not None and not view.path_in_view(T_base_gripper, T_base_hover, vertices_base, camera,
                                                            T_gripper_camera, config.view_margin_px, clearance_px):
         T_base_goal = view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config, view_depth)
     translation, _ = pose_error(T_base_gripper, T_base_goal)
     fraction = 1.0 if translation <= config.snap_distance else config.step_fraction
-    T_next = servo.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
+    T_next = view.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
                                      margin_px=config.view_margin_px, max_translation=config.max_step_translation,
                                      max_rotation=config.max_step_rotation, clearance_px=clearance_px)
     return T_next, T_base_goal
@@ -268,7 +260,7 @@ class Approach(NamedTuple):
 def plan_approach(T_base_block, T_base_gripper, config, camera, T_gripper_camera, reachable, shrink=0.85, tries=5):
     """The grasp orientation and view depth of an approach (an :class:`Approach`).
 
-    The block's symmetric grasp orientations (``servo.grasp_orientations``) are tried from the smallest
+    The block's symmetric grasp orientations (``grasp_orientations``) are tried from the smallest
     rotation of the gripper up, with the view pose's camera-to-block distance ``config.view_depth`` or
     shorter (by ``shrink``, ``tries`` times): the first whose hover pose and view pose pass ``reachable``
     (a predicate on a gripper pose in base, e.g. IK from the current angles) wins. At the view pose the
@@ -276,7 +268,7 @@ def plan_approach(T_base_block, T_base_gripper, config, camera, T_gripper_camera
     x: for a far block a turned gripper brings that back into reach. If nothing is reachable, the smallest
     rotation and ``view_depth`` with ``rank`` -1.
     """
-    orientations = servo.grasp_orientations(T_base_block, config.model.symmetry_angle, T_base_gripper)
+    orientations = grasp_orientations(T_base_block, config.model.symmetry_angle, T_base_gripper)
     for rank, R in enumerate(orientations):
         T_reference = make_transform(R)
         T_hover = hover_pose(T_base_block, config, T_reference)
@@ -290,26 +282,32 @@ def plan_approach(T_base_block, T_base_gripper, config, camera, T_gripper_camera
     return Approach(make_transform(orientations[0]), config.view_depth, -1)
 
 
-def raised(T_base_gripper, height):
-    """The same gripper pose ``height`` metres higher in base (re-acquisition, lift)."""
-    T = T_base_gripper.copy()
-    T[2, 3] += height
-    return T
-
-
-def place_pose(T_base_gripper_holding, T_gripper_block, place_xy, config, height_above_table):
-    """Gripper pose that puts the held block's bottom ``height_above_table`` (m) above the table at ``place_xy``.
+def place_pose(T_base_gripper_holding, T_gripper_block, place_xy, config, table_top_z, height_above_table):
+    """Gripper pose that puts the held block's bottom ``height_above_table`` (m) above the table (its top at
+    ``table_top_z`` in base, m) at ``place_xy``.
 
     The block keeps its current orientation in the hand (``T_gripper_block``); the gripper keeps its
     orientation and only translates.
     """
     T_base_block = T_base_gripper_holding @ T_gripper_block
-    target_block_z = config.table_top_z + config.block_height + height_above_table
+    target_block_z = table_top_z + config.block_height + height_above_table
     shift = np.array([place_xy[0] - T_base_block[0, 3], place_xy[1] - T_base_block[1, 3],
                       target_block_z - T_base_block[2, 3]])
     T = T_base_gripper_holding.copy()
     T[:3, 3] += shift
     return T
+
+
+HOLD_CONFIRM_DISTANCE = 0.02   # m: a block seen this close to where the grasp put it in the hand confirms the grip
+LEFT_BEHIND_HEIGHT = 0.01      # m: a block seen this close to lying on the table ...
+LEFT_BEHIND_DISTANCE = 0.02    # m: ... this close to where it was before the grasp was left behind
+
+
+def left_behind(T_base_block_seen, T_base_block_before, table_top_z, block_height):
+    """True if the look after lifting sees the block still lying where it was (the grip holds something else)."""
+    on_table = abs(T_base_block_seen[2, 3] - (table_top_z + block_height)) < LEFT_BEHIND_HEIGHT
+    return bool(on_table and np.linalg.norm(T_base_block_seen[:2, 3] - T_base_block_before[:2, 3])
+                < LEFT_BEHIND_DISTANCE)
 
 
 # ----------------------------------------------------------------------------------------------- image features
@@ -346,9 +344,12 @@ def camera_goal(T_base_goal_gripper, T_base_block, T_gripper_camera):
     return invert(T_base_goal_gripper @ T_gripper_camera) @ T_base_block
 
 
-def feature_error_px(s, s_star, focal_px):
-    """RMS distance (px) between current and desired normalised features."""
-    return float(np.sqrt(np.mean(np.sum((np.asarray(s) - np.asarray(s_star)) ** 2, axis=1)))) * focal_px
+def image_error_px(camera, T_camera_block, T_base_goal, T_base_block, T_gripper_camera):
+    """Pixel distance between the block centre now (``T_camera_block``) and where ``camera`` sees it from the
+    gripper goal ``T_base_goal``."""
+    now = camera.project(T_camera_block[:3, 3][None])[0]
+    at_goal = camera.project(camera_goal(T_base_goal, T_base_block, T_gripper_camera)[:3, 3][None])[0]
+    return float(np.linalg.norm(now - at_goal))
 
 
 def bounded_twist(twist, max_linear, max_angular):
@@ -364,7 +365,7 @@ def view_kept_twist(twist_camera, T_base_camera, T_base_block, config, camera, c
     if, kept for ``lookahead`` seconds, it would take the block's vertices within ``view_margin_px`` of the
     image border or (given ``clearance_px``) of the fingers.
 
-    The camera pose the twist reaches in ``lookahead`` s goes through ``servo.keep_in_view_step`` (the
+    The camera pose the twist reaches in ``lookahead`` s goes through ``view.keep_in_view_step`` (the
     PBVS rule: its approach and rotation are scaled down first, its lateral re-centring kept), and the
     twist is replaced by the one that reaches the kept pose in the same time. (Switching to a PBVS step
     toward the goal instead, as in Gans & Hutchinson's switched schemes, chattered against the law near a
@@ -372,9 +373,9 @@ def view_kept_twist(twist_camera, T_base_camera, T_base_block, config, camera, c
     """
     vertices_base = transform_points(T_base_block, config.model.vertices)
     T_ahead = servo.integrate_twist(T_base_camera, twist_camera, lookahead)
-    if servo.points_in_view(T_ahead, vertices_base, camera, config.view_margin_px, clearance_px):
+    if view.points_in_view(T_ahead, vertices_base, camera, config.view_margin_px, clearance_px):
         return np.asarray(twist_camera, dtype=float)
-    T_kept = servo.keep_in_view_step(T_base_camera, T_ahead, 1.0, vertices_base, camera, np.eye(4),
+    T_kept = view.keep_in_view_step(T_base_camera, T_ahead, 1.0, vertices_base, camera, np.eye(4),
                                      margin_px=config.view_margin_px, clearance_px=clearance_px)
     return servo.twist_between(T_base_camera, T_kept, lookahead)
 
@@ -403,7 +404,3 @@ def servo_twist(mode, T_camera_block, T_camera_goal_block, vertices_xy, model, g
 
 def make_gain(config):
     return servo.AdaptiveGain(*config.gain)
-
-
-def block_pose_in_base(T_base_camera, T_camera_block):
-    return T_base_camera @ T_camera_block

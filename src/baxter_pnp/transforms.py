@@ -65,3 +65,16 @@ def matrix_to_pose_msg(T, pose):
 def rotation_angle_between(T_a, T_b):
     """Angle (rad) of the relative rotation between two transforms' orientations."""
     return float(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).magnitude())
+
+
+def pose_error(T_current, T_goal):
+    """(translation error (m), rotation error (rad)) between two poses."""
+    translation = float(np.linalg.norm(T_goal[:3, 3] - T_current[:3, 3]))
+    return translation, rotation_angle_between(T_current, T_goal)
+
+
+def raised(T_a_b, height):
+    """The same pose ``height`` metres higher along ``a``'s z (in ``base``: up)."""
+    T = np.array(T_a_b, dtype=float)
+    T[2, 3] += height
+    return T

@@ -1,36 +1,43 @@
 """Fault injection of the fake Baxter: what goes wrong, and when (no ROS, no PyBullet).
 
-A scene's ``faults:`` key (validated by ``sim.scene``, see docs/fake_baxter.md "Fault injection") becomes
-a ``Faults``. Times are simulated seconds since the fake Baxter started, lengths metres in ``base``,
-probabilities in 0..1. The world (``sim.world``) acts out the physical faults (nudge, occluder, gripper
-misses); the node (``sim.node``) the camera, IK, command-delay and e-stop faults. Random faults take a
-uniform draw in [0, 1) per decision from a generator seeded with the fake's ``--seed``, so a run is
-reproducible; the helpers here only decide.
+A scene's ``faults:`` key (see docs/fake_baxter.md "Fault injection") becomes a ``Faults``
+(``Faults.from_dict``, via ``sim.scene``; ``params.ParameterError`` naming the key). Times are simulated
+seconds since the fake Baxter started, lengths metres in ``base``, probabilities in 0..1. The world
+(``sim.world``) acts out the physical faults (nudge, occluder, gripper misses); the node (``sim.node``) the
+camera, IK, command-delay and e-stop faults. Random faults take a uniform draw in [0, 1) per decision from a
+generator seeded with the fake's ``--seed``, so a run is reproducible; the helpers here only decide.
 """
 import collections
 import math
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Tuple
 
 import numpy as np
+
+from baxter_pnp.params import ParameterError, Parameters
 
 NUDGE_DURATION = 0.2            # s: default length of a nudge's push
 OCCLUDER_COLOR = (0.5, 0.5, 0.5)
 OCCLUDER_THICKNESS = 0.002      # m
+TIME_ORIGINS = ('boot', 'camera_open')     # what fault times count from (Faults.time_origin)
 
 
 @dataclass(frozen=True)
-class Window:
+class Window(Parameters):
     """The simulated-time interval [``at``, ``at + duration``) (s)."""
     at: float
     duration: float
+
+    def validate(self):
+        self.require_non_negative('at')
+        self.require_positive('duration')
 
     def contains(self, t):
         return self.at <= t < self.at + self.duration
 
 
 @dataclass(frozen=True)
-class CameraFaults:
+class CameraFaults(Parameters):
     """Faults of every open camera.
 
     ``drop_probability``: each frame is lost with this probability. ``latency`` (s): a frame is published
@@ -43,6 +50,10 @@ class CameraFaults:
     stall: Optional[Window] = None
     blackout: Optional[Window] = None
     brightness_gain: float = 1.0
+
+    def validate(self):
+        self.require(0.0 <= self.drop_probability <= 1.0, 'drop_probability', 'must be a probability in 0..1')
+        self.require_non_negative('latency', 'brightness_gain')
 
     def publishes(self, capture_time, uniform):
         """True if the frame captured at ``capture_time`` (s) is published; ``uniform``: its draw in [0, 1)."""
@@ -57,13 +68,17 @@ class CameraFaults:
 
 
 @dataclass(frozen=True)
-class Nudge:
+class Nudge(Parameters):
     """Block ``object`` (scene order) is pushed by ``offset`` (dx, dy) (m, base) in a straight slide that
     starts at ``at`` (s) and lasts ``duration`` (s), without rotating."""
     at: float
-    offset: tuple
+    offset: Tuple[float, float]
     object: int = 0
     duration: float = NUDGE_DURATION
+
+    def validate(self):
+        self.require_non_negative('at', 'duration')
+        self.require(self.object >= 0, 'object', 'must be a non-negative integer')
 
     def displacement(self, t):
         """(2,) displacement (m) of the block at time ``t`` (s): 0 before ``at``, ``offset`` after the push,
@@ -79,34 +94,47 @@ class Nudge:
 
 
 @dataclass(frozen=True)
-class Occluder:
+class Occluder(Parameters):
     """A thin horizontal plate hiding part of the table from the camera: centred above ``xy`` (m), ``size``
     (x, y) (m) before its ``yaw`` (rad) about base +z, its underside ``height`` (m) above the table top.
     Seen by the cameras only: nothing collides with it and the range sensor does not see it."""
-    xy: tuple
-    size: tuple
+    xy: Tuple[float, float]
+    size: Tuple[float, float]
     height: float
     yaw: float = 0.0
-    color: tuple = OCCLUDER_COLOR
+    color: Tuple[float, float, float] = OCCLUDER_COLOR
+
+    def validate(self):
+        self.require_positive('size')
+        self.require_non_negative('height')
+        self.require(all(0.0 <= c <= 1.0 for c in self.color), 'color', 'RGB components must be in 0..1')
 
 
 @dataclass(frozen=True)
-class Box:
+class Box(Parameters):
     """Axis-aligned box in ``base``: corners ``min`` and ``max`` (x, y, z) (m)."""
-    min: tuple
-    max: tuple
+    min: Tuple[float, float, float]
+    max: Tuple[float, float, float]
+
+    def validate(self):
+        if not all(low <= high for low, high in zip(self.min, self.max)):
+            raise ParameterError('', f'min must not exceed max on any axis (got min {list(self.min)}, '
+                                     f'max {list(self.max)})')
 
     def contains(self, point):
         return bool(np.all(np.asarray(self.min) <= point) and np.all(np.asarray(point) <= self.max))
 
 
 @dataclass(frozen=True)
-class IKFaults:
+class IKFaults(Parameters):
     """IK service faults: a pose fails with ``failure_probability``, or always when its target position
     lies in ``fail_region``; with ``absent`` the service is never advertised."""
     failure_probability: float = 0.0
     fail_region: Optional[Box] = None
     absent: bool = False
+
+    def validate(self):
+        self.require(0.0 <= self.failure_probability <= 1.0, 'failure_probability', 'must be a probability in 0..1')
 
     def fails(self, position_base, uniform):
         """True if the pose whose target origin is ``position_base`` (3,) (m, base) must fail; ``uniform``:
@@ -116,9 +144,12 @@ class IKFaults:
 
 
 @dataclass(frozen=True)
-class GripperFaults:
+class GripperFaults(Parameters):
     """The first ``miss_first`` closes of each gripper find nothing: the fingers pass through the blocks."""
     miss_first: int = 0
+
+    def validate(self):
+        self.require(self.miss_first >= 0, 'miss_first', 'must be a non-negative integer')
 
     def misses(self, attempt):
         """True if close attempt ``attempt`` (0 = the first) must miss."""
@@ -126,7 +157,7 @@ class GripperFaults:
 
 
 @dataclass(frozen=True)
-class Faults:
+class Faults(Parameters):
     """Every fault of a run. ``joint_command_delay`` (s): a JointCommand takes effect this long after it
     arrives. ``estop_at`` (s): the robot stops then, as on ``/robot/set_super_stop``. ``time_origin``:
     what the fault times (camera stall/blackout ``at``, ``nudge.at``, ``estop_at``) count from:
@@ -140,6 +171,10 @@ class Faults:
     joint_command_delay: float = 0.0
     estop_at: Optional[float] = None
     time_origin: str = 'boot'
+
+    def validate(self):
+        self.require_non_negative('joint_command_delay', 'estop_at')
+        self.require(self.time_origin in TIME_ORIGINS, 'time_origin', 'must be one of %s' % ', '.join(TIME_ORIGINS))
 
     def summary(self):
         """One line naming the faults that differ from none, e.g. ``camera.latency=0.1, estop_at=10``."""

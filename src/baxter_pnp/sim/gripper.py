@@ -26,12 +26,14 @@ The command's ``id`` is not checked (whether the real robot does is unverified).
 import json
 import math
 
-ELECTRIC_GRIPPER = 2                      # EndEffectorProperties.ELECTRIC_GRIPPER
+from baxter_pnp.robot.sdk import GRIPPER_PARAMETERS, GRIPPER_TYPES
+
+ELECTRIC_GRIPPER = next(code for code, kind in GRIPPER_TYPES.items() if kind == 'electric')   # ui_type
 HARDWARE_ID = 65538                       # the official simulator's id for an electric gripper
 STATE_FALSE, STATE_TRUE = 0, 1            # EndEffectorState tri-state values used here
 POSITION_CLOSED, POSITION_OPEN = 0.0, 100.0
 # baxter_interface.Gripper's defaults, sent with `configure` at construction (percent of the maximum).
-DEFAULT_PARAMETERS = {'velocity': 50.0, 'moving_force': 40.0, 'holding_force': 30.0, 'dead_zone': 5.0}
+DEFAULT_PARAMETERS = GRIPPER_PARAMETERS
 PROPERTIES = {
     'ui_type': ELECTRIC_GRIPPER,
     'manufacturer': 'Rethink Research Robot',

@@ -1,7 +1,7 @@
 """Process launcher: a private rosmaster, the fake Baxter and entry-point scripts as subprocesses.
 
 Used by the ROS integration tests (``tests/ros_graph.py``, ``tests/conftest.py``) and the batch-trials
-runner (``baxter_pnp.sim.trials``). Every run gets its own ``rosmaster --core`` on a free loopback port, so
+runners (``baxter_pnp.bench``). Every run gets its own ``rosmaster --core`` on a free loopback port, so
 it never touches a developer's roscore and runs can go in parallel. Only the processes started here
 are ever stopped: each runs in its own process group, which is signalled as a whole.
 
@@ -142,10 +142,6 @@ class RosMaster:
     def master_api(self, caller_id='/baxter_pnp_launcher'):
         """``rosgraph.Master`` client of this master."""
         return rosgraph.Master(caller_id, master_uri=self.uri)
-
-    def published_topics(self):
-        """Names of the topics that have at least one publisher."""
-        return {name for name, _ in self.master_api().getPublishedTopics('')}
 
     @contextlib.contextmanager
     def environment(self):

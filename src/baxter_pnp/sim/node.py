@@ -7,6 +7,9 @@ simulated time (``clock.RateSchedule``), then sleeps just enough to run at ``--r
 (``clock.RealTimePacer``). Rates therefore hold in simulated time whatever the CPU speed; a slow CPU
 only lowers the achieved real-time factor.
 
+Names: the SDK's topic, service and frame names and constants come from ``baxter_pnp.robot.sdk``, which
+the robot clients use too; nothing else of ``baxter_pnp.robot`` is imported here.
+
 Threading: rospy runs subscriber and service callbacks in their own threads while PyBullet belongs
 to the main loop. Subscriber callbacks only queue work (``self._inbox``) that the loop executes between
 steps; the IK service uses its own ``ArmKinematics`` (own PyBullet client, own lock) and the last joint
@@ -26,7 +29,6 @@ import dataclasses
 import errno
 import math
 import os
-import re
 import sys
 import threading
 import xml.etree.ElementTree as ElementTree
@@ -41,10 +43,11 @@ from sensor_msgs.msg import CameraInfo, Image, JointState, Range
 from std_msgs.msg import Bool, Empty, Float64, Header, UInt32
 from tf2_msgs.msg import TFMessage
 
-from baxter_pnp import camera as camera_module
 from baxter_pnp.kinematics import DEFAULT_URDF, ArmKinematics
 from baxter_pnp.msgs import msg, srv
+from baxter_pnp.robot import sdk
 from baxter_pnp.ros_image import bgr_to_msg
+from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, CameraBank, parse_camera_option
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
@@ -55,25 +58,18 @@ from baxter_pnp.transforms import invert, matrix_to_pose_msg, pose_msg_to_matrix
 NODE_NAME = 'fake_baxter'
 SOFTWARE_VERSION = '1.2.0'
 SIDE = 'left'                                   # the fully emulated arm
-ARM_TOPIC = f'/robot/limb/{SIDE}'
-GRIPPER_TOPIC = f'/robot/end_effector/{SIDE}_gripper'
-IK_SERVICE = f'/ExternalTools/{SIDE}/PositionKinematicsNode/IKService'
-RANGE_LINK = f'{SIDE}_hand_range'
-ENDPOINT_LINK = f'{SIDE}_gripper'
-BASE_FRAME = 'base'
+LIMB_TOPICS = sdk.limb_topics(SIDE)
+GRIPPER_TOPICS = sdk.gripper_topics(SIDE)
+IK_SERVICE = sdk.ik_service(SIDE)
+RANGE_LINK = sdk.arm_frames(SIDE).hand_range
+ENDPOINT_LINK = sdk.arm_frames(SIDE).gripper
 
 # Publication rates in simulated Hz (the real robot publishes its state at 100 Hz; robot_state_publisher
 # sends /tf at 50 Hz; ground truth is for tests and benchmarks).
 RATES_HZ = {'robot_state': 100.0, 'joint_states': 100.0, 'endpoint_state': 100.0, 'gripper_state': 100.0,
             'range': 100.0, 'tf': 50.0, 'object_poses': 30.0, 'gripper_properties': 1.0}
-DEFAULT_SPEED_RATIO = 0.3                       # baxter_interface: default position-mode speed ratio
-DEFAULT_COMMAND_TIMEOUT = 0.2                   # s, velocity/torque commands older than this are dropped
 RANGE_LIMITS = (0.004, 0.4)                     # m, the hand range sensor's min and max range
 
-CAMERA_NAMES = ('left_hand_camera', 'right_hand_camera', 'head_camera')
-CAMERA_MODES = ((1280, 800), (960, 600), (640, 400), (480, 300), (384, 240), (320, 200))
-MAX_OPEN_CAMERAS = 2                            # the real robot powers at most two cameras at once
-MAX_CAMERA_FPS = 60.0
 IMAGE_ENCODINGS = ('bgra8', 'bgr8', 'rgb8', 'mono8')
 
 POSITION_MODE, VELOCITY_MODE = msg.JointCommand.POSITION_MODE, msg.JointCommand.VELOCITY_MODE
@@ -155,8 +151,8 @@ class ArmCommander:
     def __init__(self, world, side):
         self.world, self.side = world, side
         self.joint_names = list(world.arm_joint_names(side))
-        self.speed_ratio = DEFAULT_SPEED_RATIO
-        self.command_timeout = DEFAULT_COMMAND_TIMEOUT
+        self.speed_ratio = sdk.DEFAULT_SPEED_RATIO
+        self.command_timeout = sdk.COMMAND_TIMEOUT
         self.mode = None                 # None = holding
         self._last_velocity_command = None
 
@@ -195,83 +191,6 @@ class ArmCommander:
             self.hold()
             return True
         return False
-
-
-@dataclasses.dataclass
-class OpenCamera:
-    """An open camera: its published model (resolution, intrinsics), frame rate and schedule."""
-    model: camera_module.CameraModel
-    fps: float
-    schedule: RateSchedule
-
-
-def camera_model_for(name, width, height):
-    """The published model of camera ``name`` at ``width`` x ``height``: the thesis calibration, scaled."""
-    model = camera_module.load_default_camera().scaled(width, height)
-    return dataclasses.replace(model, name=name, frame_id=name)
-
-
-class CameraBank:
-    """``/cameras/list|open|close`` semantics: known cameras, allowed modes, at most two open (thread-safe)."""
-
-    def __init__(self):
-        self._lock = threading.Lock()
-        self._open = {}
-
-    def list(self):
-        return list(CAMERA_NAMES)
-
-    def open(self, name, width, height, fps, now):
-        """(0, '') when opened (or re-opened with new settings) at simulated time ``now``, else (errno, reason):
-        ENODEV unknown camera, EINVAL bad mode or fps, EBUSY two other cameras already open."""
-        problem = camera_settings_problem(name, width, height, fps)
-        if problem:
-            return problem
-        with self._lock:
-            if name not in self._open and len(self._open) >= MAX_OPEN_CAMERAS:
-                return errno.EBUSY, f'{", ".join(self._open)} already open (at most {MAX_OPEN_CAMERAS} cameras)'
-            self._open[name] = OpenCamera(camera_model_for(name, width, height), float(fps),
-                                          RateSchedule(fps, start=now))
-        return 0, ''
-
-    def close(self, name):
-        """0 when closed, EINVAL when it was not open (both accepted by baxter_interface)."""
-        with self._lock:
-            return 0 if self._open.pop(name, None) is not None else errno.EINVAL
-
-    def due(self, now):
-        """[(name, OpenCamera)] of the open cameras whose next frame is due at ``now``."""
-        with self._lock:
-            return [(name, cam) for name, cam in self._open.items() if cam.schedule.due(now)]
-
-    def is_open(self, name):
-        with self._lock:
-            return name in self._open
-
-
-def camera_settings_problem(name, width, height, fps):
-    """None when camera ``name`` can run at ``width`` x ``height`` px and ``fps`` Hz, else (errno, reason)."""
-    if name not in CAMERA_NAMES:
-        return errno.ENODEV, f'unknown camera {name!r} (one of {", ".join(CAMERA_NAMES)})'
-    if (width, height) not in CAMERA_MODES:
-        return errno.EINVAL, (f'{width}x{height} is not a camera mode '
-                              f'({", ".join("%dx%d" % mode for mode in CAMERA_MODES)})')
-    if not 0 < fps <= MAX_CAMERA_FPS:
-        return errno.EINVAL, f'fps must be in (0, {MAX_CAMERA_FPS:g}], got {fps:g}'
-    return None
-
-
-def parse_camera_option(text):
-    """``NAME:WIDTHxHEIGHT@FPS`` (``@FPS`` optional, default 20) -> (name, width, height, fps)."""
-    match = re.fullmatch(r'(\w+):(\d+)x(\d+)(?:@(\d+(?:\.\d*)?))?', text)
-    if not match:
-        raise argparse.ArgumentTypeError(f'{text!r}: expected NAME:WIDTHxHEIGHT[@FPS], '
-                                         f'e.g. left_hand_camera:640x400@20')
-    name, width, height, fps = match.group(1), int(match.group(2)), int(match.group(3)), float(match.group(4) or 20)
-    problem = camera_settings_problem(name, width, height, fps)
-    if problem:
-        raise argparse.ArgumentTypeError(f'{text!r}: {problem[1]}')
-    return name, width, height, fps
 
 
 def urdf_tree(urdf_text):
@@ -350,13 +269,13 @@ class FakeBaxterNode:
         latched = dict(queue_size=1, latch=True)
         self._pub = {
             'clock': rospy.Publisher('/clock', Clock, queue_size=10),
-            'robot_state': rospy.Publisher('/robot/state', msg.AssemblyState, queue_size=10),
-            'joint_states': rospy.Publisher('/robot/joint_states', JointState, queue_size=10),
-            'endpoint_state': rospy.Publisher(f'{ARM_TOPIC}/endpoint_state', msg.EndpointState, queue_size=10),
-            'gripper_state': rospy.Publisher(f'{GRIPPER_TOPIC}/state', msg.EndEffectorState, queue_size=10),
-            'gripper_properties': rospy.Publisher(f'{GRIPPER_TOPIC}/properties', msg.EndEffectorProperties,
+            'robot_state': rospy.Publisher(sdk.ROBOT_STATE_TOPIC, msg.AssemblyState, queue_size=10),
+            'joint_states': rospy.Publisher(sdk.JOINT_STATES_TOPIC, JointState, queue_size=10),
+            'endpoint_state': rospy.Publisher(LIMB_TOPICS.endpoint_state, msg.EndpointState, queue_size=10),
+            'gripper_state': rospy.Publisher(GRIPPER_TOPICS.state, msg.EndEffectorState, queue_size=10),
+            'gripper_properties': rospy.Publisher(GRIPPER_TOPICS.properties, msg.EndEffectorProperties,
                                                   **latched),
-            'range': rospy.Publisher(f'/robot/range/{RANGE_LINK}/state', Range, queue_size=10),
+            'range': rospy.Publisher(sdk.range_topic(SIDE), Range, queue_size=10),
             'tf': rospy.Publisher('/tf', TFMessage, queue_size=10),
             'tf_static': rospy.Publisher('/tf_static', TFMessage, **latched),
             'object_poses': rospy.Publisher('~object_poses', PoseArray, queue_size=10),
@@ -369,21 +288,22 @@ class FakeBaxterNode:
         def queued(handler):
             return lambda message: self._inbox.append(lambda: handler(message))
 
-        rospy.Subscriber('/robot/set_super_enable', Bool, queued(self._on_enable), queue_size=10)
-        rospy.Subscriber('/robot/set_super_reset', Empty, queued(self._on_reset), queue_size=10)
-        rospy.Subscriber('/robot/set_super_stop', Empty, queued(self._on_stop), queue_size=10)
-        rospy.Subscriber(f'{ARM_TOPIC}/joint_command', msg.JointCommand, queued(self._on_joint_command),
+        rospy.Subscriber(sdk.ENABLE_TOPIC, Bool, queued(self._on_enable), queue_size=10)
+        rospy.Subscriber(sdk.RESET_TOPIC, Empty, queued(self._on_reset), queue_size=10)
+        rospy.Subscriber(sdk.STOP_TOPIC, Empty, queued(self._on_stop), queue_size=10)
+        rospy.Subscriber(LIMB_TOPICS.joint_command, msg.JointCommand, queued(self._on_joint_command),
                          queue_size=10, tcp_nodelay=True)
-        rospy.Subscriber(f'{ARM_TOPIC}/set_speed_ratio', Float64, queued(self._on_speed_ratio), queue_size=10)
-        rospy.Subscriber(f'{ARM_TOPIC}/joint_command_timeout', Float64, queued(self._on_command_timeout),
+        rospy.Subscriber(LIMB_TOPICS.speed_ratio, Float64, queued(self._on_speed_ratio), queue_size=10)
+        rospy.Subscriber(LIMB_TOPICS.command_timeout, Float64, queued(self._on_command_timeout),
                          queue_size=10)
-        rospy.Subscriber(f'{GRIPPER_TOPIC}/command', msg.EndEffectorCommand, queued(self._on_gripper_command),
+        rospy.Subscriber(GRIPPER_TOPICS.command, msg.EndEffectorCommand, queued(self._on_gripper_command),
                          queue_size=10)
         if not self.faults.ik.absent:
             rospy.Service(IK_SERVICE, srv.SolvePositionIK, self._solve_ik)
-        rospy.Service('/cameras/list', srv.ListCameras, lambda request: srv.ListCamerasResponse(self.cameras.list()))
-        rospy.Service('/cameras/open', srv.OpenCamera, self._open_camera)
-        rospy.Service('/cameras/close', srv.CloseCamera,
+        rospy.Service(sdk.CAMERAS_LIST_SERVICE, srv.ListCameras,
+                      lambda request: srv.ListCamerasResponse(self.cameras.list()))
+        rospy.Service(sdk.CAMERAS_OPEN_SERVICE, srv.OpenCamera, self._open_camera)
+        rospy.Service(sdk.CAMERAS_CLOSE_SERVICE, srv.CloseCamera,
                       lambda request: srv.CloseCameraResponse(self.cameras.close(request.name)))
         self._publish_tf_static()
 
@@ -416,7 +336,7 @@ class FakeBaxterNode:
         publisher.publish(Empty())
         age = _process_age()
         boot = '' if age is None else f' {age:.1f} s after start'
-        cameras = [name for name in CAMERA_NAMES if self.cameras.is_open(name)]
+        cameras = [name for name in sdk.CAMERA_NAMES if self.cameras.is_open(name)]
         rospy.loginfo('fake_baxter ready%s: robot %s, cameras open: %s, real-time factor %s, faults: %s', boot,
                       'enabled' if self.robot.enabled else 'disabled (publish True on /robot/set_super_enable)',
                       ', '.join(cameras) or 'none',
@@ -471,23 +391,23 @@ class FakeBaxterNode:
         try:
             values = parse_joint_command(message.mode, message.names, message.command, self.arm.joint_names)
         except ValueError as error:
-            rospy.logerr_throttle_identical(1.0, f'{ARM_TOPIC}/joint_command ignored: {error}')
+            rospy.logerr_throttle_identical(1.0, f'{LIMB_TOPICS.joint_command} ignored: {error}')
             return
         self._delayed_commands.put(self.world.time, lambda: self._apply_joint_command(message.mode, values))
 
     def _apply_joint_command(self, mode, values):
         """Execute a validated JointCommand (after the ``joint_command_delay`` fault, if any)."""
         if not self.robot.enabled:
-            rospy.logwarn_throttle(2.0, f'{ARM_TOPIC}/joint_command ignored: the robot is not enabled')
+            rospy.logwarn_throttle(2.0, f'{LIMB_TOPICS.joint_command} ignored: the robot is not enabled')
             return
         if mode == TORQUE_MODE:
-            rospy.logwarn_throttle(2.0, f'{ARM_TOPIC}/joint_command: torque mode is not emulated (ignored)')
+            rospy.logwarn_throttle(2.0, f'{LIMB_TOPICS.joint_command}: torque mode is not emulated (ignored)')
             return
         self.arm.command(mode, values, self.world.time)
 
     def _on_speed_ratio(self, message):
         if not math.isfinite(message.data):
-            rospy.logerr(f'{ARM_TOPIC}/set_speed_ratio ignored: {message.data}')
+            rospy.logerr(f'{LIMB_TOPICS.speed_ratio} ignored: {message.data}')
             return
         self.arm.set_speed_ratio(message.data)
 
@@ -495,13 +415,13 @@ class FakeBaxterNode:
         try:
             self.arm.set_command_timeout(message.data)
         except ValueError as error:
-            rospy.logerr(f'{ARM_TOPIC}/joint_command_timeout ignored: {error}')
+            rospy.logerr(f'{LIMB_TOPICS.command_timeout} ignored: {error}')
 
     def _on_gripper_command(self, message):
         try:
             self.gripper.handle_command(message.command, message.args, message.sender, message.sequence)
         except GripperCommandError as error:
-            rospy.logwarn(f'{GRIPPER_TOPIC}/command: {error}')
+            rospy.logwarn(f'{GRIPPER_TOPICS.command}: {error}')
 
     # ------------------------------------------------------------------ periodic publications
     def _publish_robot_state(self, header):
@@ -517,7 +437,7 @@ class FakeBaxterNode:
         self._pub['joint_states'].publish(message)
 
     def _publish_endpoint_state(self, header):
-        header.frame_id = BASE_FRAME
+        header.frame_id = sdk.BASE_FRAME
         message = msg.EndpointState(header=header)
         matrix_to_pose_msg(self.world.link_pose(ENDPOINT_LINK), message.pose)
         twist = self.world.link_twist(ENDPOINT_LINK)
@@ -543,7 +463,7 @@ class FakeBaxterNode:
 
     def _link_poses(self, links):
         """{link: T_base_link} from the world (``base`` is the identity)."""
-        return {link: np.eye(4) if link == BASE_FRAME else self.world.link_pose(link) for link in links}
+        return {link: np.eye(4) if link == sdk.BASE_FRAME else self.world.link_pose(link) for link in links}
 
     def _publish_tf(self, header):
         poses = self._link_poses({link for joint in self._moving_joints for link in joint})
@@ -565,7 +485,7 @@ class FakeBaxterNode:
         """T_base_frame composed from the last published transforms, or None for an unknown frame."""
         edges = self._tf_edges
         T = np.eye(4)
-        while frame != BASE_FRAME:
+        while frame != sdk.BASE_FRAME:
             if frame not in edges:
                 return None
             frame, T_parent_child = edges[frame]
@@ -584,7 +504,7 @@ class FakeBaxterNode:
         return message
 
     def _publish_object_poses(self, header):
-        header.frame_id = BASE_FRAME
+        header.frame_id = sdk.BASE_FRAME
         self._pub['object_poses'].publish(PoseArray(
             header=header, poses=[matrix_to_pose_msg(T, Pose()) for T in self.world.object_poses()]))
 
@@ -607,7 +527,7 @@ class FakeBaxterNode:
         err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps,
                                         self.world.time)
         if err:
-            rospy.logwarn(f'/cameras/open {request.name} refused ({errno.errorcode[err]}): {reason}')
+            rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
             self.world.start_fault_clock()
         return srv.OpenCameraResponse(err)
@@ -615,8 +535,9 @@ class FakeBaxterNode:
     def _image_publishers(self, name):
         """(image, camera_info) publishers of camera ``name``, advertised when first needed."""
         if name not in self._image_pubs:
-            self._image_pubs[name] = (rospy.Publisher(f'/cameras/{name}/image', Image, queue_size=2),
-                                      rospy.Publisher(f'/cameras/{name}/camera_info', CameraInfo, queue_size=2))
+            image_topic, info_topic = sdk.camera_topics(name)
+            self._image_pubs[name] = (rospy.Publisher(image_topic, Image, queue_size=2),
+                                      rospy.Publisher(info_topic, CameraInfo, queue_size=2))
         return self._image_pubs[name]
 
     def _capture_camera(self, name, cam, now):
@@ -672,7 +593,7 @@ class FakeBaxterNode:
 
     def _pose_in_base(self, pose_stamped):
         """T_base_target of a PoseStamped in 'base' (or '') or any URDF frame; None for an unknown frame."""
-        frame = pose_stamped.header.frame_id.lstrip('/') or BASE_FRAME
+        frame = pose_stamped.header.frame_id.lstrip('/') or sdk.BASE_FRAME
         T_base_frame = self._T_base(frame)
         if T_base_frame is None:
             rospy.logwarn(f'{IK_SERVICE}: unknown frame {frame!r}, pose marked invalid')

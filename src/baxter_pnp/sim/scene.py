@@ -13,40 +13,53 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
 ``table``, ``start``, ``camera_error``, ``faults`` and ``respawn`` (and each of their keys, except
 ``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the defaults; no
 faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required, and
-blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key.
+blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
+``params``: each dataclass below from its mapping, then its ``validate``).
 """
+import contextlib
 import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Dict, Optional, Tuple, Union
 
 import cv2
 import numpy as np
-import yaml
 
 from baxter_pnp.kinematics import arm_joint_names, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
+from baxter_pnp.params import ParameterError, Parameters, from_mapping
 from baxter_pnp.runtime import PACKAGE_ROOT
-from baxter_pnp.sim.faults import (NUDGE_DURATION, OCCLUDER_COLOR, Box, CameraFaults, Faults, GripperFaults,
-                                   IKFaults, Nudge, Occluder, Window)
+from baxter_pnp.sim.faults import Faults
 from baxter_pnp.transforms import from_xyz_rpy
 
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
 RESPAWN_DELAY = 2.0             # s (simulated): default wait of a respawn (see Respawn)
-TIME_ORIGINS = ('boot', 'camera_open')     # what fault times count from (sim/faults.py)
+START_POSE_NAMES = ('down', 'angled', 'neutral')       # config/start_poses.yaml
 
 
-class SceneError(ValueError):
-    """An invalid scene; the message names the offending key (``objects[1].side: ...``)."""
+class SceneError(ParameterError):
+    """An invalid scene; the message starts with the offending key (``objects[1].side: ...``)."""
+
+
+@contextlib.contextmanager
+def _scene_errors():
+    """Every ParameterError raised inside re-raised as a SceneError (same key and message)."""
+    try:
+        yield
+    except ParameterError as error:
+        raise SceneError(error.key, error.problem) from None
 
 
 @dataclass(frozen=True)
-class Table:
+class Table(Parameters):
     """Static table: top face at ``z = top_z``, centred at ``center`` (x, y), ``size`` (x, y) in metres."""
     top_z: float = -0.15
-    center: tuple = (0.75, 0.0)
-    size: tuple = (0.9, 1.5)
+    center: Tuple[float, float] = (0.75, 0.0)
+    size: Tuple[float, float] = (0.9, 1.5)
+
+    def validate(self):
+        self.require_positive('size')
 
     def contains(self, xy):
         """True if the point ``xy`` (m) lies on the table top."""
@@ -54,15 +67,20 @@ class Table:
 
 
 @dataclass(frozen=True)
-class SceneObject:
+class SceneObject(Parameters):
     """A block standing on the table: a regular prism (``shape``, ``side``, ``height`` in m), RGB ``color``
     in 0..1, top-face centre above ``xy`` (m), rotated ``yaw`` (rad) about base +z."""
     shape: str
     side: float
-    color: tuple
-    xy: tuple
+    color: Tuple[float, float, float]
+    xy: Tuple[float, float]
     height: float = 0.02
     yaw: float = 0.0
+
+    def validate(self):
+        self.require(self.shape in SHAPES, 'shape', f'must be one of {sorted(SHAPES, key=SHAPES.get)}')
+        self.require_positive('side', 'height')
+        self.require(all(0.0 <= c <= 1.0 for c in self.color), 'color', 'RGB components must be in 0..1')
 
     @property
     def model(self):
@@ -76,12 +94,15 @@ class SceneObject:
 
 
 @dataclass(frozen=True)
-class CameraError:
+class CameraError(Parameters):
     """The true hand camera minus the published one: mount offset ``xyz`` (m) and ``rpy`` (rad, URDF
     fixed-axis) in the published optical frame, and the ratio ``focal_scale`` of true to published focal lengths."""
-    xyz: tuple = (0.0, 0.0, 0.0)
-    rpy: tuple = (0.0, 0.0, 0.0)
+    xyz: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     focal_scale: float = 1.0
+
+    def validate(self):
+        self.require_positive('focal_scale')
 
     @property
     def T_published_true(self):
@@ -90,7 +111,7 @@ class CameraError:
 
 
 @dataclass(frozen=True)
-class Respawn:
+class Respawn(Parameters):
     """The fake re-places block ``object`` (scene order) for endless pick-and-place runs (soak tests).
 
     Once the block has been lifted (its underside at least 3 cm above the table top) and is then at rest on
@@ -98,44 +119,79 @@ class Respawn:
     gripper tip at least 8 cm above its top, for ``delay`` seconds of simulated time, it is moved, at rest,
     to the next of ``poses`` (x (m), y (m), yaw (rad) of its top-face centre, in ``base``), cycling through
     them. ``sim.world.SimWorld`` acts it out (docs/fake_baxter.md "Scene file")."""
-    poses: tuple
+    poses: Tuple[Tuple[float, float, float], ...]
     delay: float = RESPAWN_DELAY
     object: int = 0
 
+    def validate(self):
+        self.require(len(self.poses) > 0, 'poses', 'must be a non-empty list of [x, y, yaw]')
+        self.require_non_negative('delay')
+        self.require(self.object >= 0, 'object', 'must be a non-negative integer')
+
+
+# The 7 left-arm joint angles (rad) of a start map (``Scene.start``).
+_StartJoints = dataclasses.make_dataclass('_StartJoints', [(name, float) for name in arm_joint_names('left')],
+                                          bases=(Parameters,), frozen=True)
+
 
 @dataclass(frozen=True)
-class Scene:
+class Scene(Parameters):
     """A validated scene. ``start`` is a start-pose name or a dict of the 7 left-arm joint angles (rad);
-    ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None."""
+    ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None. ``validate``
+    checks what lies between the sections: blocks on the table and apart, the respawn poses, the objects
+    that ``respawn`` and ``faults.nudge`` name."""
     table: Table = field(default_factory=Table)
-    objects: tuple = ()
-    start: object = 'down'
+    objects: Tuple[SceneObject, ...] = ()
+    start: Union[str, Dict[str, float]] = 'down'
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
     respawn: Optional[Respawn] = None
 
-    def __post_init__(self):
+    def validate(self):
+        for i, obj in enumerate(self.objects):
+            if not self.table.contains(obj.xy):
+                raise ParameterError(f'objects[{i}].xy', f'{list(obj.xy)} is not on the table')
+        for j in range(len(self.objects)):
+            for i in range(j):
+                if _overlap(self.objects[i], self.objects[j]):
+                    raise ParameterError(f'objects[{j}].xy', f'the block overlaps objects[{i}] on the table')
+        if isinstance(self.start, str):
+            self.require(self.start in START_POSE_NAMES, 'start',
+                         "must be 'down', 'angled', 'neutral' or a map of the 7 left-arm joints")
+        else:
+            from_mapping(_StartJoints, self.start, 'start')
+        if self.respawn is not None:
+            self._validate_respawn()
         nudge = self.faults.nudge
         if nudge is not None and nudge.object >= len(self.objects):
-            raise SceneError(f'faults.nudge.object: {nudge.object} but the scene has {len(self.objects)} object(s)')
+            raise ParameterError('faults.nudge.object',
+                                 f'{nudge.object} but the scene has {len(self.objects)} object(s)')
+
+    def _validate_respawn(self):
+        """Every respawn pose puts the block on the table, clear of the other blocks' scene positions."""
+        index = self.respawn.object
+        if index >= len(self.objects):
+            raise ParameterError('respawn.object', f'{index} but the scene has {len(self.objects)} object(s)')
+        for k, (x, y, yaw) in enumerate(self.respawn.poses):
+            moved = dataclasses.replace(self.objects[index], xy=(x, y), yaw=yaw)
+            if not self.table.contains(moved.xy):
+                raise ParameterError(f'respawn.poses[{k}]', f'{[x, y]} is not on the table')
+            for i, other in enumerate(self.objects):
+                if i != index and _overlap(moved, other):
+                    raise ParameterError(f'respawn.poses[{k}]', f'the block would overlap objects[{i}] on the table')
 
     @classmethod
-    def from_dict(cls, d):
+    def from_dict(cls, values, where=''):
         """Scene from a dictionary (parsed YAML); ``SceneError`` naming the bad key."""
-        d = _mapping(d, 'scene', {'table', 'objects', 'start', 'camera_error', 'faults', 'respawn'})
-        table = _table(d.get('table', {}))
-        objects = d.get('objects', [])
-        if not isinstance(objects, list):
-            raise SceneError('objects: must be a list')
-        parsed = tuple(_object(o, f'objects[{i}]', table) for i, o in enumerate(objects))
-        _check_no_overlap(parsed)
-        respawn = None if d.get('respawn') is None else _respawn(d['respawn'], table, parsed)
-        return cls(table, parsed, _start(d.get('start', 'down')), _camera_error(d.get('camera_error', {})),
-                   _faults(d.get('faults', {})), respawn)
+        with _scene_errors():
+            return super().from_dict(values, where)
 
     def with_faults(self, faults):
         """This scene with ``faults`` (a ``Faults``) instead of its own; ``SceneError`` if they do not fit it."""
-        return dataclasses.replace(self, faults=faults)
+        scene = dataclasses.replace(self, faults=faults)
+        with _scene_errors():
+            scene.validate()
+        return scene
 
     def start_positions(self, start_poses_path=None):
         """dict left-arm joint name -> angle (rad) of the start pose (named poses from ``config/start_poses.yaml``)."""
@@ -144,230 +200,26 @@ class Scene:
         return load_start_poses(start_poses_path)[self.start]
 
 
+@dataclass(frozen=True)
+class _FaultsFile(Parameters):
+    """A faults file: the ``faults:`` key of a scene file, nothing else."""
+    faults: Faults = field(default_factory=Faults)
+
+
 def load_scene(path=None):
     """Scene from a YAML file (default ``config/scenes/default.yaml``); ``SceneError`` prefixed with the path."""
-    path = path or DEFAULT_SCENE_YAML
-    with open(path) as f:
-        d = yaml.safe_load(f)
-    try:
-        return Scene.from_dict(d)
-    except SceneError as error:
-        raise SceneError(f'{path}: {error}') from None
+    with _scene_errors():
+        return Scene.from_yaml(path or DEFAULT_SCENE_YAML)
 
 
 def load_faults(path):
     """``Faults`` of the ``faults:`` key of a YAML file (the same key as in a scene file, nothing else);
     ``SceneError`` prefixed with the path."""
-    with open(path) as f:
-        d = yaml.safe_load(f)
-    try:
-        return _faults(_mapping(d, 'file', {'faults'}).get('faults', {}))
-    except SceneError as error:
-        raise SceneError(f'{path}: {error}') from None
-
-
-# ------------------------------------------------------------------------------------------- validation
-def _mapping(value, key, allowed):
-    if not isinstance(value, dict):
-        raise SceneError(f'{key}: must be a mapping')
-    for k in value:
-        if k not in allowed:
-            raise SceneError(f'{key}.{k}: unknown key (expected one of {sorted(allowed)})')
-    return value
-
-
-def _number(value, key, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise SceneError(f'{key}: must be a {"positive " if positive else ""}number')
-    if positive and value <= 0:
-        raise SceneError(f'{key}: must be a positive number')
-    return float(value)
-
-
-def _non_negative(value, key):
-    if _number(value, key) < 0:
-        raise SceneError(f'{key}: must be a non-negative number')
-    return float(value)
-
-
-def _probability(value, key):
-    if not 0.0 <= _number(value, key) <= 1.0:
-        raise SceneError(f'{key}: must be a probability in 0..1')
-    return float(value)
-
-
-def _count(value, key):
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise SceneError(f'{key}: must be a non-negative integer')
-    return value
-
-
-def _vector(value, key, length, positive=False):
-    if not isinstance(value, (list, tuple)) or len(value) != length:
-        raise SceneError(f'{key}: must be a list of {length} numbers')
-    return tuple(_number(v, f'{key}[{i}]', positive) for i, v in enumerate(value))
-
-
-def _color(value, key):
-    color = _vector(value, key, 3)
-    if not all(0.0 <= c <= 1.0 for c in color):
-        raise SceneError(f'{key}: RGB components must be in 0..1')
-    return color
-
-
-def _table(d):
-    d = _mapping(d, 'table', {'top_z', 'center', 'size'})
-    default = Table()
-    return Table(_number(d.get('top_z', default.top_z), 'table.top_z'),
-                 _vector(d.get('center', default.center), 'table.center', 2),
-                 _vector(d.get('size', default.size), 'table.size', 2, positive=True))
-
-
-def _object(d, key, table):
-    d = _mapping(d, key, {'shape', 'side', 'height', 'color', 'xy', 'yaw'})
-    for required in ('shape', 'side', 'color', 'xy'):
-        if required not in d:
-            raise SceneError(f'{key}.{required}: missing')
-    if d['shape'] not in SHAPES:
-        raise SceneError(f'{key}.shape: must be one of {sorted(SHAPES, key=SHAPES.get)}, got {d["shape"]!r}')
-    color = _color(d['color'], f'{key}.color')
-    xy = _vector(d['xy'], f'{key}.xy', 2)
-    if not table.contains(xy):
-        raise SceneError(f'{key}.xy: {list(xy)} is not on the table')
-    return SceneObject(d['shape'], _number(d['side'], f'{key}.side', positive=True), color, xy,
-                       _number(d.get('height', 0.02), f'{key}.height', positive=True),
-                       _number(d.get('yaw', 0.0), f'{key}.yaw'))
+    with _scene_errors():
+        return _FaultsFile.from_yaml(path).faults
 
 
 def _overlap(a, b):
     """True if the outlines of scene objects ``a`` and ``b`` on the table overlap (touching is fine)."""
     area, _ = cv2.intersectConvexConvex(a.footprint().astype(np.float32), b.footprint().astype(np.float32))
     return area > 1e-7                                         # m^2 (0.1 mm^2)
-
-
-def _check_no_overlap(objects):
-    """SceneError naming the later of two blocks whose outlines on the table overlap (touching is fine)."""
-    for j in range(len(objects)):
-        for i in range(j):
-            if _overlap(objects[i], objects[j]):
-                raise SceneError(f'objects[{j}].xy: the block overlaps objects[{i}] on the table')
-
-
-def _respawn(d, table, objects):
-    """``Respawn`` of the ``respawn:`` mapping; every pose must put the block on the table, clear of the other
-    blocks' scene positions."""
-    d = _mapping(d, 'respawn', {'poses', 'delay', 'object'})
-    _required(d, 'respawn', ('poses',))
-    index = _count(d.get('object', 0), 'respawn.object')
-    if index >= len(objects):
-        raise SceneError(f'respawn.object: {index} but the scene has {len(objects)} object(s)')
-    if not isinstance(d['poses'], list) or not d['poses']:
-        raise SceneError('respawn.poses: must be a non-empty list of [x, y, yaw]')
-    poses = tuple(_vector(pose, f'respawn.poses[{k}]', 3) for k, pose in enumerate(d['poses']))
-    for k, (x, y, yaw) in enumerate(poses):
-        moved = dataclasses.replace(objects[index], xy=(x, y), yaw=yaw)
-        if not table.contains(moved.xy):
-            raise SceneError(f'respawn.poses[{k}]: {[x, y]} is not on the table')
-        for i, other in enumerate(objects):
-            if i != index and _overlap(moved, other):
-                raise SceneError(f'respawn.poses[{k}]: the block would overlap objects[{i}] on the table')
-    return Respawn(poses, _non_negative(d.get('delay', RESPAWN_DELAY), 'respawn.delay'), index)
-
-
-def _start(value):
-    if isinstance(value, str):
-        if value not in ('down', 'angled', 'neutral'):
-            raise SceneError(f"start: must be 'down', 'angled', 'neutral' or a map of the 7 left-arm joints, "
-                             f"got {value!r}")
-        return value
-    names = arm_joint_names('left')
-    d = _mapping(value, 'start', set(names))
-    missing = [n for n in names if n not in d]
-    if missing:
-        raise SceneError(f'start.{missing[0]}: missing (a start map needs all of {names})')
-    return {n: _number(d[n], f'start.{n}') for n in names}
-
-
-def _camera_error(d):
-    d = _mapping(d, 'camera_error', {'xyz', 'rpy', 'focal_scale'})
-    return CameraError(_vector(d.get('xyz', (0, 0, 0)), 'camera_error.xyz', 3),
-                       _vector(d.get('rpy', (0, 0, 0)), 'camera_error.rpy', 3),
-                       _number(d.get('focal_scale', 1.0), 'camera_error.focal_scale', positive=True))
-
-
-# ------------------------------------------------------------------------------------------- faults
-def _faults(d, key='faults'):
-    d = _mapping(d, key, {'camera', 'nudge', 'occluder', 'ik', 'gripper', 'joint_command_delay', 'estop_at',
-                          'time_origin'})
-    if d.get('time_origin', 'boot') not in TIME_ORIGINS:
-        raise SceneError(f'{key}.time_origin: must be one of {", ".join(TIME_ORIGINS)}')
-
-    def optional(name, parse):
-        return None if d.get(name) is None else parse(d[name], f'{key}.{name}')
-    return Faults(camera=_camera_faults(d.get('camera', {}), f'{key}.camera'),
-                  nudge=optional('nudge', _nudge),
-                  occluder=optional('occluder', _occluder),
-                  ik=_ik_faults(d.get('ik', {}), f'{key}.ik'),
-                  gripper=_gripper_faults(d.get('gripper', {}), f'{key}.gripper'),
-                  joint_command_delay=_non_negative(d.get('joint_command_delay', 0.0), f'{key}.joint_command_delay'),
-                  estop_at=optional('estop_at', _non_negative),
-                  time_origin=d.get('time_origin', 'boot'))
-
-
-def _required(d, key, names):
-    for name in names:
-        if name not in d:
-            raise SceneError(f'{key}.{name}: missing')
-
-
-def _window(d, key):
-    d = _mapping(d, key, {'at', 'duration'})
-    _required(d, key, ('at', 'duration'))
-    return Window(_non_negative(d['at'], f'{key}.at'), _number(d['duration'], f'{key}.duration', positive=True))
-
-
-def _camera_faults(d, key):
-    d = _mapping(d, key, {'drop_probability', 'latency', 'stall', 'blackout', 'brightness_gain'})
-    return CameraFaults(
-        drop_probability=_probability(d.get('drop_probability', 0.0), f'{key}.drop_probability'),
-        latency=_non_negative(d.get('latency', 0.0), f'{key}.latency'),
-        stall=None if d.get('stall') is None else _window(d['stall'], f'{key}.stall'),
-        blackout=None if d.get('blackout') is None else _window(d['blackout'], f'{key}.blackout'),
-        brightness_gain=_non_negative(d.get('brightness_gain', 1.0), f'{key}.brightness_gain'))
-
-
-def _nudge(d, key):
-    d = _mapping(d, key, {'at', 'offset', 'object', 'duration'})
-    _required(d, key, ('at', 'offset'))
-    return Nudge(_non_negative(d['at'], f'{key}.at'), _vector(d['offset'], f'{key}.offset', 2),
-                 _count(d.get('object', 0), f'{key}.object'),
-                 _non_negative(d.get('duration', NUDGE_DURATION), f'{key}.duration'))
-
-
-def _occluder(d, key):
-    d = _mapping(d, key, {'xy', 'size', 'height', 'yaw', 'color'})
-    _required(d, key, ('xy', 'size', 'height'))
-    return Occluder(_vector(d['xy'], f'{key}.xy', 2), _vector(d['size'], f'{key}.size', 2, positive=True),
-                    _non_negative(d['height'], f'{key}.height'), _number(d.get('yaw', 0.0), f'{key}.yaw'),
-                    _color(d.get('color', OCCLUDER_COLOR), f'{key}.color'))
-
-
-def _ik_faults(d, key):
-    d = _mapping(d, key, {'failure_probability', 'fail_region', 'absent'})
-    region = None
-    if d.get('fail_region') is not None:
-        region_key = f'{key}.fail_region'
-        r = _mapping(d['fail_region'], region_key, {'min', 'max'})
-        _required(r, region_key, ('min', 'max'))
-        region = Box(_vector(r['min'], f'{region_key}.min', 3), _vector(r['max'], f'{region_key}.max', 3))
-        if not all(low <= high for low, high in zip(region.min, region.max)):
-            raise SceneError(f'{region_key}: min must not exceed max on any axis')
-    absent = d.get('absent', False)
-    if not isinstance(absent, bool):
-        raise SceneError(f'{key}.absent: must be true or false')
-    return IKFaults(_probability(d.get('failure_probability', 0.0), f'{key}.failure_probability'), region, absent)
-
-
-def _gripper_faults(d, key):
-    d = _mapping(d, key, {'miss_first'})
-    return GripperFaults(_count(d.get('miss_first', 0), f'{key}.miss_first'))

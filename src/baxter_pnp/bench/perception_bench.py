@@ -75,7 +75,7 @@ def orientation_error_deg(R_true, R_est, symmetry_angle):
     return float(np.degrees(best))
 
 
-def table_plane_in_camera(T_camera_block):
+def true_table_plane(T_camera_block):
     """The table-top plane (the block's bottom face) in the camera frame, normal towards the block's top."""
     normal = T_camera_block[:3, 2]
     bottom_centre = T_camera_block[:3, 3] - BLOCK_HEIGHT * normal
@@ -102,7 +102,7 @@ def run_dataset(kind, samples, camera, config, seed):
             row = dict(base, estimator=estimator)
             if target is not None:
                 method = estimator.split('+')[0]
-                plane = table_plane_in_camera(T_true) if estimator.endswith('+plane') else None
+                plane = true_table_plane(T_true) if estimator.endswith('+plane') else None
                 start = time.perf_counter()
                 try:
                     estimate = pose.estimate_pose(target.vertices_px, camera, model, method=method,

@@ -10,11 +10,11 @@ pincer line, as the thesis requires). The gripper is put 161 mm (the thesis's ru
 square's centroid, pointing at it, in five poses, each named by where the gripper is relative to the
 block: ``above`` (gripper axis vertical), ``left`` / ``right`` (tilted sideways, the gripper on the
 robot's left, +y, or right, -y), ``front`` / ``behind`` (tilted forward or backward, the gripper
-between the robot and the block, -x, or beyond it, +x). The arm is commanded through the pick
-application itself (``PickApplication.move_to_pose``: the IK service, safety-checked position moves),
-tilting in small steps from ``above`` so that each IK solution stays on the same branch. In each pose
-the application's own ``look`` (frame, endpoint pose, hand-eye from tf, table plane, ``observe_blocks``
-with the 'sqp' estimator) runs on 56 camera frames. Two errors per sample, estimate minus truth, the
+between the robot and the block, -x, or beyond it, +x). The arm is commanded through the task layer's
+public pieces, as the pick uses them (``task.motion.Motion.move_to_pose``: the IK service, safety-checked
+position moves), tilting in small steps from ``above`` so that each IK solution stays on the same branch. In
+each pose the task layer's ``Eye.look`` (frame, endpoint pose at its stamp, hand-eye from tf, table plane,
+``observe_blocks`` with the 'sqp' estimator) with the pick's target rules runs on 56 camera frames. Two errors per sample, estimate minus truth, the
 truth from the fake's ground truth (``/fake_baxter/object_poses``) and forward kinematics of the
 measured joint angles:
 
@@ -34,6 +34,7 @@ import os
 import time
 import traceback
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 import yaml
@@ -172,22 +173,46 @@ def block_ground_truth(timeout=5.0):
     return pose_msg_to_matrix(message.poses[0])
 
 
-def connect_application():
-    """A connected ``PickApplication`` with the package's pick and vision configuration (rospy initialised)."""
-    from baxter_pnp import application, pick, vision
-    app = application.PickApplication(pick.PickConfig.from_yaml(application.DEFAULT_CONFIG),
-                                      vision.VisionConfig.from_yaml())
-    app.connect()
-    return app
+class DepthRig(NamedTuple):
+    """The task layer's public pieces the depth experiment runs on (rospy initialised)."""
+    session: object     # task.session.RobotSession, connected
+    motion: object      # task.motion.Motion
+    eye: object         # task.eye.Eye looking for the pick configuration's block
+    rules: object       # task.target.TargetRules of that block
+
+    def look(self, after_stamp):
+        """A look whose target is the believable block (``task.target.choose_target``)."""
+        from baxter_pnp.task import target
+
+        def choose(observations, T_base_camera, camera):
+            return target.choose_target(observations, T_base_camera, self.rules, (camera.width, camera.height))
+        return self.eye.look(after_stamp, choose)
 
 
-def sample_depth(app, condition, pose_name, count, T_base_block_true):
+def connect_rig():
+    """A connected :class:`DepthRig` with the package's pick and vision configuration."""
+    from baxter_pnp import pick, pick_app, vision
+    from baxter_pnp.task import target
+    from baxter_pnp.task.eye import BlockQuery, Eye
+    from baxter_pnp.task.motion import Motion
+    from baxter_pnp.task.session import RobotSession
+    from baxter_pnp.task.settings import load_configs
+    config, session_config = load_configs(pick.PickConfig, pick_app.DEFAULT_CONFIG)
+    session = RobotSession(session_config, log_name='depth')
+    session.connect()
+    query = BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
+                       session_config.table_top_z)
+    return DepthRig(session, Motion(session), Eye(session, vision.VisionConfig.from_yaml(), query),
+                    target.TargetRules.of(config, session_config.table_top_z))
+
+
+def sample_depth(rig, condition, pose_name, count, T_base_block_true):
     """``count`` DepthSamples from consecutive camera frames, the arm held still (rospy initialised)."""
     import rospy
-    side = app.config.side
+    side, kinematics, limb = rig.session.config.side, rig.session.kinematics, rig.session.limb
     samples, after, misses = [], rospy.get_time(), 0
     while len(samples) < count:
-        look = app.look(after_stamp=after)
+        look = rig.look(after)
         after = look.frame.stamp
         if look.target is None:
             misses += 1
@@ -195,10 +220,10 @@ def sample_depth(app, condition, pose_name, count, T_base_block_true):
                 raise RuntimeError('depth %s/%s: the block is not detected (%d frames without it)'
                                    % (condition, pose_name, misses))
             continue
-        q = app.limb.joint_positions()
+        q = limb.joint_positions()
         samples.append(depth_sample(condition, pose_name, len(samples), look.frame.stamp, look.target.pose,
                                     look.T_base_camera, look.T_base_gripper,
-                                    app.kinematics.fk(q, '%s_hand_camera' % side), app.kinematics.fk(q, '%s_gripper' % side),
+                                    kinematics.fk(q, '%s_hand_camera' % side), kinematics.fk(q, '%s_gripper' % side),
                                     T_base_block_true))
     return samples
 
@@ -211,23 +236,23 @@ def measure_depth(condition, poses=DEPTH_POSES, samples=DEPTH_SAMPLES, tilt_deg=
     ``SETTLE_S`` robot seconds, and tilts back.
     """
     import rospy
-    app = connect_application()
+    rig = connect_rig()
     T_base_block = block_ground_truth()
     target = T_base_block[:3, 3]
     tilt = math.radians(tilt_deg)
     above = pointing_pose(target, pose_direction('above', 0.0), distance)
-    app.move_to_pose(above, 'depth pose above')
+    rig.motion.move_to_pose(above, 'depth pose above')
     results = []
     for index, name in enumerate(poses):
         path = [] if name == 'above' else tilt_path(target, name, tilt, distance)
         for k, T in enumerate(path):
-            app.move_to_pose(T, 'depth pose %s (%d/%d)' % (name, k + 1, len(path)))
+            rig.motion.move_to_pose(T, 'depth pose %s (%d/%d)' % (name, k + 1, len(path)))
         rospy.sleep(SETTLE_S)
-        results += sample_depth(app, condition, name, samples, block_ground_truth())
+        results += sample_depth(rig, condition, name, samples, block_ground_truth())
         if path and index + 1 < len(poses):
             for k, T in enumerate(path[-2::-1] + [above]):
-                app.move_to_pose(T, 'back from %s (%d/%d)' % (name, k + 1, len(path)))
-    app.camera.close()
+                rig.motion.move_to_pose(T, 'back from %s (%d/%d)' % (name, k + 1, len(path)))
+    rig.session.camera.close()
     return results
 
 
@@ -343,7 +368,7 @@ def reach_time(history, position_tolerance_mm, yaw_tolerance_deg):
 def reach_trial(row):
     """A ``ReachTrial`` from a ``trials.run_trial`` row (reads its result.json)."""
     from baxter_pnp import pick
-    from baxter_pnp.sim import trials
+    from baxter_pnp.bench import trials
     path = os.path.join(row['trial_dir'], 'result.json')
     history = []
     if os.path.exists(path):
@@ -364,13 +389,13 @@ def reach_seed(seed, start_pose, trial):
 
 def run_reach_cells(master, out_dir, trial_count, seed, start_poses, fractions, timeout):
     """Every (start pose, fraction, trial) run on ``master`` (this process's rospy node must be on it)."""
-    from baxter_pnp.sim import trials
+    from baxter_pnp.bench import trial_scenes, trials
     results = []
     for start_pose in start_poses:
         for trial in range(trial_count):
             scene_seed = reach_seed(seed, start_pose, trial)
-            scene = trials.random_scene(np.random.default_rng(scene_seed), start_pose,
-                                        size_range=(REACH_SIDE_M, REACH_SIDE_M))
+            scene = trial_scenes.random_scene(np.random.default_rng(scene_seed), start_pose,
+                                              size_range=(REACH_SIDE_M, REACH_SIDE_M))
             for fraction in fractions:
                 workdir = os.path.join(out_dir, 'reach', '%s_%.2f_%02d' % (start_pose, fraction, trial))
                 row = trials.run_trial(master, scene, 'pbvs', start_pose, fraction, workdir, timeout=timeout,

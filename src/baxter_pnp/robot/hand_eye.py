@@ -1,0 +1,57 @@
+"""``hand_eye_transform``: the hand camera's mount on the arm, from tf (or the URDF if tf does not answer).
+
+Frames: ``T_hand_camera`` is the ``<side>_hand_camera`` pose in ``<side>_hand``, ``T_gripper_camera``
+its pose in ``<side>_gripper`` (4x4, metres). Timeouts in wall-clock seconds.
+"""
+from typing import NamedTuple
+
+import numpy as np
+import rospy
+
+from baxter_pnp.robot import sdk
+from baxter_pnp.robot.topics import wait_until
+from baxter_pnp.transforms import from_xyz_quat, invert
+
+
+class HandEye(NamedTuple):
+    """The hand camera's mount: T_hand_camera, T_gripper_camera (4x4, m) and their source ('tf' or 'urdf')."""
+    T_hand_camera: np.ndarray
+    T_gripper_camera: np.ndarray
+    source: str
+
+
+def _tf_matrix(transform_stamped):
+    t, q = transform_stamped.transform.translation, transform_stamped.transform.rotation
+    return from_xyz_quat((t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
+
+
+def hand_eye_transform(side, timeout=2.0, urdf_path=None):
+    """The ``<side>_hand_camera`` pose in ``<side>_hand`` and in ``<side>_gripper``, from tf.
+
+    Falls back (with a warning) to the URDF (``ArmKinematics``, ``urdf_path`` or urdf/baxter.urdf)
+    when tf does not provide both transforms within ``timeout`` wall seconds.
+    """
+    import tf2_ros
+    frames = sdk.arm_frames(side)
+    hand, gripper, camera = frames.hand, frames.gripper, frames.hand_camera
+    buffer = tf2_ros.Buffer()
+    listener = tf2_ros.TransformListener(buffer)
+    try:
+        latest = rospy.Time(0)
+        if wait_until(lambda: buffer.can_transform(hand, camera, latest) and
+                      buffer.can_transform(gripper, camera, latest), timeout, rate_hz=50.0):
+            return HandEye(_tf_matrix(buffer.lookup_transform(hand, camera, latest)),
+                           _tf_matrix(buffer.lookup_transform(gripper, camera, latest)), 'tf')
+    finally:
+        listener.unregister()
+    rospy.logwarn(f'tf has no {hand} -> {camera} and {gripper} -> {camera} after {timeout} s: '
+                  f'using the URDF instead')
+    from baxter_pnp.kinematics import ArmKinematics
+    kinematics = ArmKinematics(side, urdf_path)
+    try:
+        q = np.clip(np.zeros(7), kinematics.lower, kinematics.upper)
+        T_base_camera = kinematics.fk(q, camera)
+        return HandEye(invert(kinematics.fk(q, hand)) @ T_base_camera,
+                       invert(kinematics.fk(q, gripper)) @ T_base_camera, 'urdf')
+    finally:
+        kinematics.close()

@@ -1,0 +1,60 @@
+"""The robot session's parameters (arm, camera mode, table, timeouts, outputs) and how a task's parameters and
+the session's are read: defaults <- YAML <- private ROS parameters (``~name``) <- command line. Pure (no ROS:
+the caller passes the ``~name`` values it read)."""
+import math
+from dataclasses import dataclass, field, fields
+from typing import List, Optional
+
+from baxter_pnp.params import Parameters, load_mapping
+
+
+@dataclass
+class SessionConfig(Parameters):
+    """Everything a task needs of the robot session (metres, seconds; ``*_timeout`` and ``stream_max_age`` wall
+    time unless said otherwise)."""
+
+    side: str = 'left'                      # arm (and its hand camera)
+    resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
+    fps: int = 20                           # hand camera rate (Hz)
+    camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
+                                            # camera_info; scaled to the camera mode if calibrated at another size
+    speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
+    table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
+    tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
+                                            # paddles reach 3.5 mm beyond the tip plane
+    waypoint_spacing: float = 0.02          # IK along straight Cartesian paths: waypoints this far apart (m)
+    timeout: float = 90.0                   # one task run (s of robot time)
+    stream_max_age: float = 2.0             # a robot topic silent for longer is lost
+    frame_timeout: float = 5.0              # a look waits this long for a camera frame
+    robot_wait_timeout: float = 30.0        # after lost streams, wait this long for the robot to return
+    max_recoveries: int = 2                 # times a run resumes after the robot came back
+    cycles: int = 1                         # tasks run one after the other in one process
+    next_block_timeout: float = 30.0        # between cycles: wait this long (s of robot time) for the next block
+    save_views: bool = False                # save every annotated camera view in the output directory (views/)
+
+    def validate(self):
+        self.require(self.side in ('left', 'right'), 'side', "must be 'left' or 'right'")
+        self.require(len(self.resolution) == 2 and min(self.resolution) > 0, 'resolution', 'must be [width, height]')
+        self.require_positive('fps', 'waypoint_spacing', 'timeout', 'stream_max_age', 'frame_timeout',
+                              'robot_wait_timeout', 'cycles', 'next_block_timeout', 'tip_margin')
+        self.require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
+        self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
+        self.require(self.max_recoveries >= 0, 'max_recoveries', 'must be >= 0')
+
+
+def field_names(config_class):
+    return [f.name for f in fields(config_class)]
+
+
+def load_configs(task_class, yaml_path=None, private_params=None, overrides=None):
+    """``(task_class config, SessionConfig)`` from, in increasing precedence: the defaults, the YAML mapping at
+    ``yaml_path`` (one file holds both sets of keys), ``private_params`` (e.g. ``~name`` ROS parameters) and
+    ``overrides`` (the command line); None values in ``overrides`` are ignored. ParameterError names the key
+    of any unknown or bad value."""
+    values = load_mapping(yaml_path) if yaml_path else {}
+    values.update(private_params or {})
+    values.update({key: value for key, value in (overrides or {}).items() if value is not None})
+    session_keys = set(field_names(SessionConfig))
+    session = SessionConfig.from_dict({k: v for k, v in values.items() if k in session_keys})
+    task = task_class.from_dict({k: v for k, v in values.items() if k not in session_keys})
+    return task, session

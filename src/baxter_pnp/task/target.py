@@ -1,0 +1,95 @@
+"""Target choice, pure: which of a look's observations is the block, and where to look from when it is lost or
+cut by the image border.
+
+A look gives ``perception.BlockObservation`` s (pose in the camera frame); ``T_base_camera`` (4x4, m) puts them
+in ``base``. An estimate is *believable* when its RMS reprojection residual is below ``max_residual_px`` and (a
+block lying on the table) its top face is within ``max_height_error`` of the table top + block height; blocks
+within two sides of ``place_xy`` count as already placed. Among believable ones the target is the one nearest
+the last estimate (tracking the same block), else the largest / most central (``vision.select_target``).
+"""
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from baxter_pnp import vision
+from baxter_pnp.transforms import raised
+
+TRACK_RADIUS = 0.05     # m: an estimate this close to the last one is the same block
+
+
+@dataclass(frozen=True)
+class TargetRules:
+    """What the target is and which estimates of it to believe (metres, pixels; positions in base)."""
+    shape: str
+    colour: str
+    side_length: float
+    block_height: float
+    table_top_z: float
+    max_residual_px: float
+    max_height_error: float
+    place_xy: Optional[Sequence[float]] = None
+
+    @classmethod
+    def of(cls, task_config, table_top_z):
+        """The rules of a task config with ``shape``, ``colour``, ``side_length``, ``block_height``,
+        ``max_residual_px``, ``max_height_error`` and ``place_xy`` (e.g. ``pick.PickConfig``)."""
+        c = task_config
+        return cls(c.shape, c.colour, c.side_length, c.block_height, table_top_z, c.max_residual_px,
+                   c.max_height_error, c.place_xy)
+
+
+def believable(observation, T_base_camera, rules, on_table=True, placed_too=False):
+    """True if ``observation``'s estimate can be the target (see the module docstring); ``on_table`` checks the
+    height, ``placed_too`` accepts blocks at ``place_xy``."""
+    pose = observation.pose
+    if pose is None or pose.residual_px > rules.max_residual_px:
+        return False
+    position = (T_base_camera @ pose.T_camera_object)[:3, 3]
+    if (not placed_too and rules.place_xy is not None
+            and np.linalg.norm(position[:2] - np.asarray(rules.place_xy)) < 2 * rules.side_length):
+        return False
+    expected_z = rules.table_top_z + rules.block_height
+    return not on_table or abs(position[2] - expected_z) <= rules.max_height_error
+
+
+def choose_target(observations, T_base_camera, rules, image_size, T_base_last=None, on_table=True,
+                  placed_too=False):
+    """The target among ``observations`` (``perception.BlockObservation`` s) or None: the believable one
+    within TRACK_RADIUS of the last estimate ``T_base_last`` (4x4 in base) if any, else the largest / most
+    central (``vision.select_target``; ``image_size`` (width, height) px)."""
+    posed = [o for o in observations if believable(o, T_base_camera, rules, on_table, placed_too)]
+    if not posed:
+        return None
+    if T_base_last is not None:
+        distances = [np.linalg.norm((T_base_camera @ o.pose.T_camera_object)[:3, 3] - T_base_last[:3, 3])
+                     for o in posed]
+        if min(distances) < TRACK_RADIUS:
+            return posed[int(np.argmin(distances))]
+    chosen = vision.select_target([o.detection for o in posed], rules.shape, rules.colour, image_size)
+    return next(o for o in posed if o.detection is chosen)
+
+
+def recentred(T_base_gripper, T_base_camera, T_base_block, rise):
+    """Gripper pose translated so the camera's optical axis meets the (partly visible) block's estimated centre
+    at its height, and ``rise`` m higher (a wider view)."""
+    axis = T_base_camera[:3, 2]
+    plane_z = T_base_block[2, 3]
+    hit = T_base_camera[:3, 3] + axis * (plane_z - T_base_camera[2, 3]) / axis[2] if abs(axis[2]) > 1e-3 \
+        else T_base_camera[:3, 3]
+    T = np.array(T_base_gripper, dtype=float)
+    T[:2, 3] += T_base_block[:2, 3] - hit[:2]
+    T[2, 3] += rise
+    return T
+
+
+def search_pose(T_base_gripper, lost, backoff_height, T_base_view=None, reachable=None):
+    """Where to look from after ``lost`` + 1 looks in a row without the block: ``T_base_view`` (a view of where
+    it was last seen, e.g. ``pick.view_pose``) ``lost * backoff_height`` higher when given and ``reachable``
+    (a predicate on a gripper pose), else ``backoff_height`` above the current ``T_base_gripper``.
+    Returns (pose, True if it is the view of the last-seen block)."""
+    if T_base_view is not None:
+        T_view = raised(T_base_view, lost * backoff_height)
+        if reachable is None or reachable(T_view):
+            return T_view, True
+    return raised(T_base_gripper, backoff_height), False

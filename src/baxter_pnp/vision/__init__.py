@@ -1,0 +1,77 @@
+"""The thesis colour pipeline (section 3.2, Algorithm 1): BGR image in -> polygon vertices out. No ROS.
+
+Default stages, every parameter in ``config/vision.yaml`` (``config.VisionConfig``):
+
+1. BGR -> HSV (``cv2.cvtColor``).
+2. Gamma correction ``S_out = 255 (S_in / 255) ** gamma`` with gamma = 0.6 (eq. 3.13), as a LUT.
+3. Dynamic saturation threshold ``(S_max - S_min) / epsilon`` with epsilon = 2.25 (eq. 3.14).
+4. Over-saturation: S = 250, V = 180 where the corrected S is at or above the threshold, S = V = 0 below.
+5. Low-pass filter with the kernel of eq. 3.17, ``(1/(2+b)^2) [1 b 1]^T [1 b 1]``, b = 2 (separable).
+6. Colour range (green: H 50-70, S 100-255, V 100-255 on OpenCV's 0-179 hue scale) -> binary mask
+   (on the over-saturated image, as in the thesis).
+7. Morphological opening, then closing.
+8. Laplacian sharpening (kernel ``[-1 -1 -1; -1 8 -1; -1 -1 -1]``), then ``findContours``.
+9. Area threshold; Douglas-Peucker (``approxPolyDP``); merge of vertices closer than a distance
+   (the thesis's "high pass filter" of chapter 6); shape from the vertex count.
+
+Modules, by stage: ``config`` (parameters), ``colour`` (steps 1-8), ``topface`` (top-face isolation),
+``polygon`` (step 9, cut corners, side fitting), ``subpixel`` (sub-pixel vertices), ``detection`` (the
+stages composed: ``detect``, ``select_target``, ``draw_detections``). Their public names are re-exported here.
+
+Where this departs from the letter of Algorithm 1, and why:
+
+- Gamma is applied to S only. Algorithm 1 also raises H and V to the power gamma, but hue is an angle
+  (a power law moves the colour ranges of step 6 and breaks the red wrap-around), and V is overwritten
+  by the over-saturation of step 4 anyway, so its correction has no effect on the output.
+- The low-pass filter is applied to S and V, not H: averaging hues across an edge, or across the red
+  0/179 wrap-around, makes up hues that are in no range.
+- Eq. 3.17 as transcribed shows a 4-element column ``[1 b b 1]``; its normalisation ``1/(2+b)^2`` only
+  makes sense for ``[1 b 1]^T [1 b 1]``, which is what is used (it sums to 1).
+- The merge distance is a fraction of the polygon's perimeter, not a pixel count: the thesis notes that
+  its fixed-distance filter lowered the height at which a (smaller-looking) square was still found.
+
+Beyond the thesis (all switchable in the YAML):
+
+- Cut corners (``remove_cut_corners``, after the merge): morphology rounds acute corners and a side
+  face can clip one, and Douglas-Peucker then keeps both ends of the cut; an edge whose neighbours,
+  extended, meet in a point adding less than ``cut_corner_area_fraction`` of the area is replaced by
+  that point (a true corner adds 8 % or more even in strong perspective). 0 disables it.
+- Top-face isolation (``isolate_top_face``): in oblique views the side faces (same hue, darker) join
+  the blob and turn a square into a hexagon. Under light from above the table the top face is the
+  brightest face: V of the original image, inside the blob, is split by Otsu's threshold (repeated
+  while the split is significant, for a side face nearly as bright as the top), and the brightest
+  region that is as saturated as the top (not the pale mix of a side face and the table) is kept.
+  A side face lit within ``min_contrast`` (12 %) of the top, or brighter (a low light), is not split off.
+- Coarse corners (``fit_polygon_sides``): lines fitted to the sides of the outline, away from the
+  corners that morphology and the face split round off, intersected.
+- Sub-pixel vertices (``refine_vertices``): each edge is re-measured on the original image along its
+  normal and a line is fitted to the edge points (Huber), consecutive lines intersected. The edge
+  point of a profile comes from a two-colour model, top face and table: the table's share locates the
+  table's edge, and the darkening no mix of the two explains measures the side face in between: one
+  thinner than the blur (1-3 px, near face-on views off-centre) is removed by its darkening mass, a
+  wider one by the step to its colour.
+- A floor under the dynamic threshold (``min_saturation_threshold``) and a zero border for the
+  Laplacian, so a colourless image stays empty and a blob cut by the image border keeps a closed outline.
+- Speed (``roi``): the candidate blobs of each colour are found by the same stages on a subsampled
+  image; the full pipeline then runs only in padded regions around them, for their colours. The
+  dynamic threshold (eq. 3.14) is then taken from the subsampled image's saturation range.
+
+Pixels are (u, v) = (column, row), origin at the centre of the top-left pixel; vertex coordinates are
+in the raw (distorted) image.
+"""
+from baxter_pnp.vision.colour import (LAPLACIAN_KERNEL, colour_mask, find_blobs, gamma_lut, laplacian_sharpen,
+                                      lowpass, lowpass_kernel, lowpass_kernel_1d, open_close, oversaturate,
+                                      saturation_threshold)
+from baxter_pnp.vision.config import DEFAULT_VISION_YAML, RoiConfig, SubpixelConfig, TopFaceConfig, VisionConfig
+from baxter_pnp.vision.detection import Detection, detect, draw_detections, select_target, validate_image
+from baxter_pnp.vision.polygon import (SHAPE_OF_VERTEX_COUNT, approximate_polygon, classify_shape, fit_polygon_sides,
+                                       merge_close_vertices, order_vertices, remove_cut_corners)
+from baxter_pnp.vision.subpixel import refine_vertices
+from baxter_pnp.vision.topface import isolate_top_face
+
+__all__ = ['DEFAULT_VISION_YAML', 'LAPLACIAN_KERNEL', 'SHAPE_OF_VERTEX_COUNT', 'Detection', 'RoiConfig',
+           'SubpixelConfig', 'TopFaceConfig', 'VisionConfig', 'approximate_polygon', 'classify_shape', 'colour_mask',
+           'detect', 'draw_detections', 'find_blobs', 'fit_polygon_sides', 'gamma_lut', 'isolate_top_face',
+           'laplacian_sharpen', 'lowpass', 'lowpass_kernel', 'lowpass_kernel_1d', 'merge_close_vertices',
+           'open_close', 'order_vertices', 'oversaturate', 'refine_vertices', 'remove_cut_corners',
+           'saturation_threshold', 'select_target', 'validate_image']

@@ -1,0 +1,118 @@
+"""Parameters of the vision pipeline (``config/vision.yaml``): lengths in pixels of the full-resolution image,
+colour ranges in OpenCV's HSV (hue 0-179, saturation and value 0-255)."""
+import os
+from dataclasses import dataclass, field
+
+from baxter_pnp.params import ParameterError, Parameters
+from baxter_pnp.runtime import PACKAGE_ROOT
+
+DEFAULT_VISION_YAML = os.path.join(PACKAGE_ROOT, 'config', 'vision.yaml')
+_HSV_TOP = (179, 255, 255)
+
+
+@dataclass(frozen=True)
+class TopFaceConfig(Parameters):
+    """Top-face isolation: the brightest face (by V) inside the blob (see ``topface.isolate_top_face``).
+
+    ``min_contrast``: fraction of the bright class's mean V; ``min_face_fraction``: fraction of the blob's
+    interior pixels; ``min_solidity``: area / convex-hull area of the face."""
+    enabled: bool = True
+    min_contrast: float = 0.12
+    min_face_fraction: float = 0.1
+    min_solidity: float = 0.8
+
+
+@dataclass(frozen=True)
+class RoiConfig(Parameters):
+    """Candidate search on an image subsampled by ``downsample``; full pipeline in padded regions."""
+    enabled: bool = True
+    downsample: int = 8
+    padding_px: int = 16
+
+    def validate(self):
+        self.require(self.downsample >= 1, 'downsample', 'must be >= 1')
+
+
+@dataclass(frozen=True)
+class SubpixelConfig(Parameters):
+    """Sub-pixel edge-line refinement of the vertices (see ``subpixel.refine_vertices``).
+
+    Lengths (``*_px``) in pixels of the full image; ``min_contrast`` a BGR distance (0-255 per channel);
+    ``side_face_darkening`` 1 - (side face / top face brightness)."""
+    enabled: bool = True
+    passes: int = 1
+    profile_half_length_px: float = 4.0
+    profile_step_px: float = 0.5
+    profiles_per_edge: int = 16
+    corner_margin_px: float = 1.5
+    min_edge_length_px: float = 4.0
+    min_points: int = 6
+    min_contrast: float = 20.0
+    side_face_darkening: float = 0.5
+    min_strip_mass_px: float = 0.15
+    resolved_strip_px: float = 2.5
+    max_rms_px: float = 0.5
+    max_shift_px: float = 5.0
+
+
+@dataclass(frozen=True)
+class VisionConfig(Parameters):
+    """Parameters of the pipeline; the fields mirror ``config/vision.yaml`` (see its comments).
+
+    ``colours`` maps a colour name to a tuple of inclusive HSV ranges ``((h, s, v) low, (h, s, v) high)``
+    whose masks are OR-ed (red needs two: its hue wraps around 0); given as YAML lists, parsed on construction.
+    """
+    gamma: float = 0.6
+    saturation_epsilon: float = 2.25
+    min_saturation_threshold: float = 30.0
+    oversaturated_s: int = 250
+    oversaturated_v: int = 180
+    lowpass_b: float = 2.0
+    colours: dict = field(default_factory=lambda: {'green': (((50, 100, 100), (70, 255, 255)),)})
+    morphology_kernel_px: int = 3
+    laplacian_sharpening: bool = True
+    min_area_px: float = 100.0
+    approx_epsilon_fraction: float = 0.02
+    merge_distance_fraction: float = 0.05
+    cut_corner_area_fraction: float = 0.04
+    border_margin_px: float = 3.0
+    top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
+    subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
+    roi: RoiConfig = field(default_factory=RoiConfig)
+
+    def __post_init__(self):
+        object.__setattr__(self, 'colours', {name: _parse_colour_ranges(name, ranges)
+                                             for name, ranges in self.colours.items()})
+
+    def validate(self):
+        self.require(self.gamma > 0, 'gamma', 'must be > 0')
+        self.require(self.saturation_epsilon > 0, 'saturation_epsilon', 'must be > 0')
+        self.require(self.lowpass_b >= 0, 'lowpass_b', 'must be >= 0')
+        self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
+        self.require(bool(self.colours), 'colours', 'must define at least one colour')
+
+    def colour_names(self):
+        """Names of the configured colours, in YAML order."""
+        return list(self.colours)
+
+    @classmethod
+    def from_yaml(cls, path=None):
+        """Config from a YAML file (default ``config/vision.yaml`` of the package); ParameterError naming the key."""
+        return super().from_yaml(path or DEFAULT_VISION_YAML)
+
+
+def _parse_colour_ranges(name, ranges):
+    """Tuple of ``((h, s, v), (h, s, v))`` integer ranges, or ParameterError naming the colour (``colours.red``)."""
+    key = f'colours.{name}'
+    try:
+        parsed = tuple((tuple(int(c) for c in low), tuple(int(c) for c in high)) for low, high in ranges)
+    except (TypeError, ValueError):
+        raise ParameterError(key, f'must be a list of [[h, s, v], [h, s, v]] ranges (got {ranges!r})') from None
+    if not parsed:
+        raise ParameterError(key, 'has no range')
+    for low, high in parsed:
+        if len(low) != 3 or len(high) != 3:
+            raise ParameterError(key, f'each bound needs 3 values (h, s, v) (got {low}-{high})')
+        if not all(0 <= lo <= hi <= top for lo, hi, top in zip(low, high, _HSV_TOP)):
+            raise ParameterError(key, f'range {low}-{high} must satisfy 0 <= low <= high <= {_HSV_TOP}')
+    return parsed

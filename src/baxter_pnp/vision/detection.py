@@ -1,0 +1,221 @@
+"""Detection: a BGR uint8 image in -> the polygons (``Detection``) of the configured colours out, the stages of
+``colour``, ``topface``, ``polygon`` and ``subpixel`` composed; the search regions; the target's choice; drawing.
+Pixels (u, v) = (column, row) of the raw (distorted) image, origin at the centre of the top-left pixel."""
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from baxter_pnp.models import SHAPES
+from baxter_pnp.vision.colour import (colour_mask, dynamic_threshold, find_blobs, laplacian_sharpen, open_close,
+                                      oversaturated_hsv)
+from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, merge_close_vertices,
+                                       order_vertices, remove_cut_corners)
+from baxter_pnp.vision.subpixel import refine_vertices
+from baxter_pnp.vision.topface import isolate_top_face
+
+_TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
+
+
+@dataclass
+class Detection:
+    """A polygon of one colour found in the image (pixels of the raw, distorted image).
+
+    ``vertices_px`` (n, 2) ordered by increasing ``atan2(v - vc, u - uc)``; ``centroid_px`` (2,) and
+    ``area_px`` (px^2) of that polygon; ``quality`` in 0..1 (1 = clean, convex polygon whose edges fit
+    straight lines); ``touches_border``: a vertex within ``border_margin_px`` of the image border;
+    ``contour`` (M, 1, 2) int32: the outline used (the top face), for drawing.
+    """
+    shape: str
+    colour: str
+    vertices_px: np.ndarray
+    centroid_px: np.ndarray
+    area_px: float
+    quality: float
+    touches_border: bool
+    contour: np.ndarray
+
+
+def validate_image(image_bgr):
+    """``image_bgr`` if it is a non-empty uint8 (H, W, 3) array, else ValueError saying what is wrong.
+
+    Single-channel (mono8) images are rejected, not converted: the pipeline segments by hue, so a grey
+    image can never contain a detection and accepting it would hide a wrong topic or encoding.
+    """
+    if not isinstance(image_bgr, np.ndarray):
+        raise ValueError(f'detect: expected a numpy array, got {type(image_bgr).__name__}')
+    if image_bgr.dtype != np.uint8:
+        raise ValueError(f'detect: expected a uint8 image, got dtype {image_bgr.dtype}')
+    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
+        raise ValueError(f'detect: expected a BGR image of shape (H, W, 3), got shape {image_bgr.shape}'
+                         + ('; mono8 images are not accepted (the pipeline segments by colour)'
+                            if image_bgr.ndim == 2 else ''))
+    if image_bgr.shape[0] == 0 or image_bgr.shape[1] == 0:
+        raise ValueError(f'detect: empty image of shape {image_bgr.shape}')
+    return image_bgr
+
+
+def detect(image_bgr, config, colours=None, shapes=None):
+    """Polygons of the configured colours in a BGR uint8 image, largest first.
+
+    ``colours`` / ``shapes``: names to look for (None = every configured colour / every shape of
+    ``models.SHAPES``); unknown names raise ValueError, as does a bad image (``validate_image``).
+    """
+    image_bgr = validate_image(image_bgr)
+    colours = config.colour_names() if colours is None else list(colours)
+    unknown = [c for c in colours if c not in config.colours]
+    if unknown:
+        raise ValueError(f'detect: unknown colour(s) {unknown}; configured: {config.colour_names()}')
+    shapes = set(SHAPES) if shapes is None else set(shapes)
+    if not shapes <= set(SHAPES):
+        raise ValueError(f'detect: unknown shape(s) {sorted(shapes - set(SHAPES))}; known: {sorted(SHAPES)}')
+    ranges = {name: config.colours[name] for name in colours}
+    if config.roi.enabled:
+        threshold, regions = _candidate_regions(image_bgr, ranges, config)
+    else:
+        hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+        threshold = dynamic_threshold(hsv, config)
+        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(ranges))]
+    detections = []
+    for region, region_colours in regions:
+        region_ranges = {name: r for name, r in ranges.items() if name in region_colours}
+        detections.extend(_detect_in_region(image_bgr, region, threshold, region_ranges, shapes, config))
+    detections.sort(key=lambda d: -d.area_px)
+    return detections
+
+
+def _candidate_regions(image_bgr, ranges, config):
+    """``(threshold, regions)``: eq. 3.14's threshold and the regions ``((x0, y0, x1, y1), colours)`` to search.
+
+    Runs stages 1-6 on the image subsampled by ``roi.downsample`` (nearest pixel); each blob of a
+    colour gives a box padded by ``roi.padding_px``; overlapping boxes are merged (with their
+    colours) so that every blob lies whole inside exactly one region.
+    """
+    f = config.roi.downsample
+    h, w = image_bgr.shape[:2]
+    small = cv2.resize(image_bgr, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_NEAREST)
+    hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
+    threshold = dynamic_threshold(hsv, config)
+    oversaturated = oversaturated_hsv(hsv, threshold, config)
+    pad = config.roi.padding_px
+    boxes = []
+    for colour, colour_ranges in ranges.items():
+        mask = colour_mask(oversaturated, colour_ranges)
+        if not cv2.countNonZero(mask):
+            continue
+        _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        for x, y, bw, bh, area in stats[1:]:
+            if area * f * f >= 0.25 * config.min_area_px:
+                boxes.append(((max(0, x * f - pad), max(0, y * f - pad),
+                               min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour}))
+    return threshold, _merge_boxes(boxes)
+
+
+def _merge_boxes(boxes):
+    """Union of overlapping ``((x0, y0, x1, y1), colours)`` boxes (and of their colour sets) until none overlap."""
+    boxes = list(boxes)
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                (a, colours_a), (b, colours_b) = boxes[i], boxes[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    boxes[i] = ((min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])),
+                                colours_a | colours_b)
+                    del boxes[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return boxes
+
+
+def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
+    """Detections of the colours in ``ranges`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
+    x0, y0, x1, y1 = region
+    crop = image_bgr[y0:y1, x0:x1]
+    hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
+    oversaturated = oversaturated_hsv(hsv, threshold, config)
+    offset = np.array([x0, y0])
+    detections = []
+    for colour, colour_ranges in ranges.items():
+        mask = colour_mask(oversaturated, colour_ranges)
+        if not cv2.countNonZero(mask):
+            continue
+        mask = open_close(mask, config.morphology_kernel_px)
+        binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
+        for blob in find_blobs(binary, config.min_area_px):
+            outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
+            detection = None if outline is None else _polygon_detection(image_bgr, outline, offset, colour, config)
+            if detection is not None and detection.shape in shapes:
+                detections.append(detection)
+    return detections
+
+
+def _polygon_detection(image_bgr, outline, offset, colour, config):
+    """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None.
+
+    ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)).
+    """
+    hull = cv2.convexHull(outline)
+    coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
+    coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
+    coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
+    shape = classify_shape(len(coarse))
+    if shape is None:
+        return None
+    coarse = fit_polygon_sides(outline, coarse)
+    coarse = coarse + offset
+    solidity = cv2.contourArea(outline) / max(cv2.contourArea(hull), 1e-9)
+    if config.subpixel.enabled:
+        vertices, rms, fallbacks = refine_vertices(image_bgr, coarse, config.subpixel)
+        fit = math.exp(-rms / config.subpixel.max_rms_px) if np.isfinite(rms) else 0.5
+        quality = solidity * fit * (1.0 - 0.5 * fallbacks / len(coarse))
+    else:
+        vertices, quality = coarse, solidity
+    vertices = order_vertices(vertices)
+    moments = cv2.moments(vertices.astype(np.float32))
+    if moments['m00'] <= 0:
+        return None
+    h, w = image_bgr.shape[:2]
+    margin = config.border_margin_px
+    touches = bool(np.any((vertices < margin) | (vertices > np.array([w - 1, h - 1]) - margin)))
+    return Detection(shape=shape, colour=colour, vertices_px=vertices,
+                     centroid_px=np.array([moments['m10'], moments['m01']]) / moments['m00'],
+                     area_px=float(moments['m00']), quality=float(np.clip(quality, 0.0, 1.0)),
+                     touches_border=touches, contour=(outline + offset).astype(np.int32))
+
+
+def select_target(detections, shape, colour, image_size):
+    """The detection to servo to: of ``shape`` and ``colour`` (None = any), the largest; ties -> most central.
+
+    Areas within 2 % of the largest count as a tie, broken by the distance of the centroid to the
+    centre of the image of ``image_size`` = (width, height) pixels. None if nothing matches.
+    """
+    candidates = [d for d in detections
+                  if (shape is None or d.shape == shape) and (colour is None or d.colour == colour)]
+    if not candidates:
+        return None
+    largest = max(d.area_px for d in candidates)
+    tied = [d for d in candidates if d.area_px >= (1.0 - _TIE_AREA_FRACTION) * largest]
+    centre = (np.asarray(image_size, dtype=float) - 1.0) / 2.0
+    return min(tied, key=lambda d: float(np.linalg.norm(d.centroid_px - centre)))
+
+
+def draw_detections(image_bgr, detections):
+    """Copy of ``image_bgr`` with each detection's contour, numbered vertices and ``shape colour`` label."""
+    canvas = image_bgr.copy()
+    for detection in detections:
+        cv2.drawContours(canvas, [detection.contour], -1, (255, 0, 255), 1, cv2.LINE_AA)
+        polygon = np.round(detection.vertices_px * 16).astype(np.int32)   # 4 fractional bits
+        cv2.polylines(canvas, [polygon], True, (0, 0, 255), 1, cv2.LINE_AA, shift=4)
+        for k, (u, v) in enumerate(detection.vertices_px):
+            cv2.circle(canvas, (int(round(u * 16)), int(round(v * 16))), 3 * 16, (0, 0, 255), 1, cv2.LINE_AA, shift=4)
+            cv2.putText(canvas, str(k), (int(round(u)) + 4, int(round(v)) - 4), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.4, (0, 0, 255), 1, cv2.LINE_AA)
+        u, v = (int(round(c)) for c in detection.centroid_px)
+        cv2.putText(canvas, f'{detection.shape} {detection.colour}', (u - 30, v), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return canvas

@@ -1,0 +1,102 @@
+"""The task layer's pure parts: target choice, re-centre and search poses, session/task parameters."""
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from baxter_pnp import pick
+from baxter_pnp.params import ParameterError
+from baxter_pnp.perception import BlockObservation
+from baxter_pnp.pose import PoseEstimate
+from baxter_pnp.task import target
+from baxter_pnp.task.settings import SessionConfig, load_configs
+from baxter_pnp.transforms import invert, make_transform
+from baxter_pnp.vision import Detection
+
+TABLE_Z = -0.15
+RULES = target.TargetRules('square', 'green', 0.04, 0.02, TABLE_Z, max_residual_px=2.0, max_height_error=0.02,
+                           place_xy=(0.62, 0.12))
+DOWN = Rotation.from_euler('x', np.pi)             # camera looking straight down (optical z = -base z)
+T_BASE_CAMERA = make_transform(DOWN, (0.65, 0.10, 0.25))
+
+
+def observation(x, y, z=TABLE_Z + 0.02, residual=0.3, area=900.0, centroid=(320.0, 200.0), touches_border=False):
+    """A green square's observation whose estimate puts it at (x, y, z) in base."""
+    T_camera_block = invert(T_BASE_CAMERA) @ make_transform(None, (x, y, z))
+    detection = Detection('square', 'green', np.zeros((4, 2)), np.asarray(centroid, float), area, 1.0,
+                          touches_border, np.zeros((4, 1, 2), np.int32))
+    return BlockObservation(detection, PoseEstimate(T_camera_block, residual, 'sqp', None))
+
+
+def test_only_believable_estimates_are_targets():
+    on_table = observation(0.70, 0.10)
+    assert target.believable(on_table, T_BASE_CAMERA, RULES)
+    assert not target.believable(observation(0.70, 0.10, residual=2.5), T_BASE_CAMERA, RULES)   # occluded, odd
+    assert not target.believable(observation(0.70, 0.10, z=TABLE_Z + 0.045), T_BASE_CAMERA, RULES)  # 2.5 cm high
+    assert target.believable(observation(0.70, 0.10, z=TABLE_Z + 0.045), T_BASE_CAMERA, RULES, on_table=False)
+    placed = observation(0.62 + 0.07, 0.12)     # within two sides (8 cm) of the place position
+    assert not target.believable(placed, T_BASE_CAMERA, RULES)
+    assert target.believable(placed, T_BASE_CAMERA, RULES, placed_too=True)
+    no_pose = BlockObservation(on_table.detection, None, 'estimation failed')
+    assert not target.believable(no_pose, T_BASE_CAMERA, RULES)
+
+
+def test_choose_target_tracks_the_same_block_else_takes_the_largest():
+    small, large = observation(0.70, 0.02, area=800.0), observation(0.75, 0.20, area=1200.0)
+    image_size = (640, 400)
+    assert target.choose_target([small, large], T_BASE_CAMERA, RULES, image_size) is large
+    last = make_transform(None, (0.71, 0.03, TABLE_Z + 0.02))           # 1.4 cm from the small one
+    assert target.choose_target([small, large], T_BASE_CAMERA, RULES, image_size, last) is small
+    far_last = make_transform(None, (0.50, -0.20, TABLE_Z + 0.02))     # neither is the block seen before
+    assert target.choose_target([small, large], T_BASE_CAMERA, RULES, image_size, far_last) is large
+    unbelievable = observation(0.75, 0.20, area=5000.0, residual=9.0)
+    assert target.choose_target([unbelievable, small], T_BASE_CAMERA, RULES, image_size) is small
+    assert target.choose_target([unbelievable], T_BASE_CAMERA, RULES, image_size) is None
+
+
+def test_recentred_puts_the_block_on_the_optical_axis():
+    T_base_gripper = make_transform(DOWN, (0.60, 0.05, 0.20))
+    T_gripper_camera = make_transform(Rotation.from_euler('z', 0.2), (0.03, 0.0, -0.1))
+    T_base_camera = T_base_gripper @ T_gripper_camera
+    T_base_block = make_transform(None, (0.72, 0.18, TABLE_Z + 0.02))
+    T_next = target.recentred(T_base_gripper, T_base_camera, T_base_block, 0.025)
+    T_next_camera = T_next @ T_gripper_camera
+    axis = T_next_camera[:3, 2]
+    hit = T_next_camera[:3, 3] + axis * (T_base_block[2, 3] - T_next_camera[2, 3]) / axis[2]
+    np.testing.assert_allclose(hit[:2], T_base_block[:2, 3], atol=1e-9)
+    assert T_next[2, 3] == pytest.approx(T_base_gripper[2, 3] + 0.025)
+    np.testing.assert_allclose(T_next[:3, :3], T_base_gripper[:3, :3])
+
+
+def test_search_pose_looks_from_above_the_last_seen_block_when_reachable():
+    T_here = make_transform(DOWN, (0.60, 0.05, 0.20))
+    T_view = make_transform(DOWN, (0.70, 0.15, 0.10))
+    pose, over_block = target.search_pose(T_here, 2, 0.05, T_view, lambda T: True)
+    assert over_block and pose[2, 3] == pytest.approx(0.20) and pose[0, 3] == pytest.approx(0.70)
+    pose, over_block = target.search_pose(T_here, 2, 0.05, T_view, lambda T: False)   # out of reach: back off
+    assert not over_block and pose[2, 3] == pytest.approx(0.25) and pose[0, 3] == pytest.approx(0.60)
+    pose, over_block = target.search_pose(T_here, 0, 0.05)                          # never seen: back off
+    assert not over_block and pose[2, 3] == pytest.approx(0.25)
+
+
+def test_left_behind_only_when_the_block_still_lies_where_it_was():
+    before = make_transform(None, (0.70, 0.10, TABLE_Z + 0.02))
+    assert pick.left_behind(before, before, TABLE_Z, 0.02)
+    assert not pick.left_behind(make_transform(None, (0.70, 0.10, TABLE_Z + 0.12)), before, TABLE_Z, 0.02)   # lifted
+    assert not pick.left_behind(make_transform(None, (0.75, 0.10, TABLE_Z + 0.02)), before, TABLE_Z, 0.02)   # other
+
+
+def test_one_yaml_splits_into_the_task_and_the_session_with_precedence(tmp_path):
+    path = tmp_path / 'pick.yaml'
+    path.write_text(yaml.safe_dump({'mode': 'ibvs', 'side': 'left', 'table_top_z': -0.12, 'cycles': 2,
+                                    'step_fraction': 0.2, 'fps': 10}))
+    task, session = load_configs(pick.PickConfig, str(path), {'step_fraction': 0.3, 'fps': 15},
+                                 {'step_fraction': 0.12, 'mode': None})
+    assert (task.mode, task.step_fraction) == ('ibvs', 0.12)                 # YAML, then the command line
+    assert (session.table_top_z, session.cycles, session.fps) == (-0.12, 2, 15)   # YAML, then ~private
+    assert isinstance(session, SessionConfig) and not hasattr(task, 'cycles')
+    for values, key in (({'cycles': 0}, 'cycles'), ({'side': 'middle'}, 'side'), ({'fps': 'fast'}, 'fps'),
+                        ({'speed_ratio': 1.5}, 'speed_ratio'), ({'save_views': 'yes'}, 'save_views'),
+                        ({'stepfraction': 0.1}, 'stepfraction')):
+        with pytest.raises(ParameterError, match=key):
+            load_configs(pick.PickConfig, None, values)

@@ -48,9 +48,11 @@ def test_pick_each_mode(mode, start_pose, ros_master, ros_node, fake_baxter, tmp
         assert result['success'] and result['mode'] == mode and result['failure_reason'] is None
         assert result['steps'] >= 1 and 0 < result['time_s'] < 30
         T_base_block = ground_truth_block()
-        assert T_base_block[2, 3] - z_before >= 0.05, 'the block was not lifted'
+        # the app lifts 10 cm (lift_height); 1 cm of margin for the block settling in the fingers
+        assert T_base_block[2, 3] - z_before >= 0.09, 'the block was not lifted 10 cm'
         block_in_gripper = (invert(gripper_pose()) @ T_base_block)[:3, 3]
-        assert np.hypot(*block_in_gripper[:2]) < 0.005, 'grasp off-centre by %s m' % block_in_gripper[:2]
+        # README: centring 0.2-0.3 mm median, p90 0.5 mm over the trial batches; 2 mm leaves room for noise
+        assert np.hypot(*block_in_gripper[:2]) < 0.002, 'grasp off-centre by %s m' % block_in_gripper[:2]
     finally:
         fake.stop()
 

@@ -60,8 +60,29 @@ def test_camera_info_round_trip(camera):
     assert camera.to_camera_info(Header(frame_id='other', seq=7)).header.seq == 7
 
 
+def test_camera_info_region_of_interest_and_binning_as_image_geometry(camera):
+    """K of the full sensor; the image is the ROI, binned: principal point (c - offset) / binning, focal / binning."""
+    info = camera.to_camera_info()
+    info.width, info.height = 1280, 800
+    info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 320, 200, 640, 400
+    cropped = CameraModel.from_camera_info(info)
+    assert (cropped.width, cropped.height) == (640, 400)
+    assert (cropped.cx, cropped.cy) == pytest.approx((camera.cx - 320, camera.cy - 200))
+    assert (cropped.fx, cropped.fy) == pytest.approx((camera.fx, camera.fy))
+    info.binning_x = info.binning_y = 2
+    binned = CameraModel.from_camera_info(info)
+    assert (binned.width, binned.height) == (320, 200)
+    assert (binned.cx, binned.cy, binned.fx) == pytest.approx(((camera.cx - 320) / 2, (camera.cy - 200) / 2, camera.fx / 2))
+    info.header.frame_id = '/left_hand_camera'
+    assert CameraModel.from_camera_info(info).frame_id == 'left_hand_camera'
+
+
 @pytest.mark.parametrize('field, value, message', [
     ('K', [0.0] * 9, 'focal length'),
+    ('K', [float('nan'), 0, 320, 0, 400, 200, 0, 0, 1], 'finite'),
+    ('K', [-400.0, 0, 320, 0, 400, 200, 0, 0, 1], 'focal lengths must be positive'),
+    ('K', [400.0, 0, 320, 0, 400, 200, 0, 0, 0], 'last row'),
+    ('D', [0.1, float('inf'), 0, 0, 0], 'finite'),
     ('K', [1.0] * 4, 'K must have 9'),
     ('D', [0.1, 0.2], 'D must have 5'),
     ('distortion_model', 'equidistant', 'distortion_model'),
@@ -75,6 +96,10 @@ def test_camera_info_rejects_bad_fields(camera, field, value, message):
 
 @pytest.mark.parametrize('edit, message', [
     (lambda d: d['camera_matrix'].update(data=[0.0] * 9), 'zero focal length'),
+    (lambda d: d['camera_matrix']['data'].__setitem__(0, float('nan')), 'finite'),
+    (lambda d: d['camera_matrix']['data'].__setitem__(4, -410.0), 'focal lengths must be positive'),
+    (lambda d: d['distortion_coefficients']['data'].__setitem__(1, float('nan')), 'finite'),
+    (lambda d: d.update(image_width=0), 'size must be positive'),
     (lambda d: d['camera_matrix'].update(rows=2), 'camera_matrix must be 3x3'),
     (lambda d: d['distortion_coefficients'].update(data=[0.1, 0.2, 0.3]), 'distortion_coefficients must be 1x5'),
     (lambda d: d.update(distortion_model='rational_polynomial'), 'distortion_model'),

@@ -6,11 +6,13 @@ Distorted pixels are raw-image coordinates; "normalised" coordinates are (X/Z, Y
 undistorted ray. The distortion model is OpenCV's plumb bob, ``D = (k1, k2, p1, p2, k3)``.
 
 The YAML layout is the one of ROS's ``camera_calibration_parsers`` (what ``cameracalibrator.py``
-writes and ``camera_info_manager`` reads). ROS is only imported by ``from_camera_info`` and
+writes and ``camera_info_manager`` reads). A ``CameraInfo`` (message, or its ``rostopic echo`` YAML) is read
+as ``image_geometry`` reads it: region of interest and binning applied. ROS is only imported by
 ``to_camera_info``.
 """
 import functools
 import os
+import types
 from dataclasses import dataclass, field
 
 import cv2
@@ -42,8 +44,13 @@ class CameraModel:
         self.D = np.array(self.D, dtype=float).reshape(5)
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f'camera image size must be positive, got {self.width}x{self.height}')
-        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+        if not (np.all(np.isfinite(self.K)) and np.all(np.isfinite(self.D))):
+            raise ValueError(f'camera_matrix and distortion must be finite, got K={self.K.ravel().tolist()}, '
+                             f'D={self.D.tolist()}')
+        if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):
             raise ValueError(f'camera_matrix: focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}')
+        if not np.allclose(self.K[2], [0.0, 0.0, 1.0]):
+            raise ValueError(f'camera_matrix: last row must be [0, 0, 1], got {self.K[2].tolist()}')
 
     @property
     def fx(self):
@@ -148,14 +155,15 @@ class CameraModel:
 
     @classmethod
     def from_yaml(cls, path):
-        """Camera from a ``camera_calibration_parsers`` YAML file."""
+        """Camera from a ``camera_calibration_parsers`` YAML file, or from a CameraInfo message as
+        ``rostopic echo`` prints it (keys ``K``, ``D``, ``roi``, ...: read as ``from_camera_info``)."""
         with open(path) as f:
             d = yaml.safe_load(f)
         if not isinstance(d, dict):
             raise ValueError(f'camera YAML {path}: not a mapping')
         try:
-            return cls.from_dict(d)
-        except ValueError as error:
+            return cls.from_camera_info(_camera_info_from_dict(d)) if 'K' in d else cls.from_dict(d)
+        except (ValueError, TypeError) as error:
             raise ValueError(f'{path}: {error}') from None
 
     def to_yaml(self, path, rms=None):
@@ -169,7 +177,14 @@ class CameraModel:
     # ----------------------------------------------------------------------------- ROS edge
     @classmethod
     def from_camera_info(cls, msg):
-        """Camera from a ``sensor_msgs/CameraInfo`` (an empty ``D`` means no distortion)."""
+        """Camera of the image a ``sensor_msgs/CameraInfo`` describes, read as ``image_geometry`` reads it.
+
+        ``K`` is the full-resolution camera's; a region of interest (``roi``, all zeros = the full image)
+        and binning give the delivered image: size ``roi`` (or ``width`` x ``height``) / binning, principal
+        point ``(c - roi offset) / binning``, focal lengths / binning (a Baxter hand camera at 640x400 sends
+        the full-sensor K with roi offset (320, 200)). An empty ``D`` means no distortion; a leading ``/`` of
+        ``frame_id`` is dropped (tf2 frame names have none). ValueError naming the bad field.
+        """
         model = msg.distortion_model or DISTORTION_MODEL
         if model != DISTORTION_MODEL:
             raise ValueError(f'CameraInfo: distortion_model {model!r} is not supported (only {DISTORTION_MODEL!r})')
@@ -178,11 +193,22 @@ class CameraModel:
         if len(msg.D) not in (0, 5):
             raise ValueError(f'CameraInfo: D must have 5 elements for plumb_bob, got {len(msg.D)}')
         K = np.array(msg.K, dtype=float).reshape(3, 3)
-        if K[0, 0] == 0 or K[1, 1] == 0:
-            raise ValueError(f'CameraInfo: K has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
         D = np.array(msg.D, dtype=float) if len(msg.D) else np.zeros(5)
-        frame_id = msg.header.frame_id or 'left_hand_camera'
-        return cls(msg.width, msg.height, K, D, name=frame_id, frame_id=frame_id)
+        binning_x, binning_y = max(1, int(msg.binning_x)), max(1, int(msg.binning_y))
+        roi = msg.roi
+        full_image = roi.x_offset == 0 and roi.y_offset == 0 and roi.width == 0 and roi.height == 0
+        width, height = (msg.width, msg.height) if full_image else (roi.width, roi.height)
+        if not full_image and (roi.width == 0 or roi.height == 0):
+            raise ValueError(f'CameraInfo: roi {roi.x_offset},{roi.y_offset} {roi.width}x{roi.height} is not an image')
+        K[0, 2] -= roi.x_offset
+        K[1, 2] -= roi.y_offset
+        K[0] /= binning_x
+        K[1] /= binning_y
+        frame_id = msg.header.frame_id.lstrip('/') or 'left_hand_camera'
+        try:
+            return cls(width // binning_x, height // binning_y, K, D, name=frame_id, frame_id=frame_id)
+        except ValueError as error:
+            raise ValueError(f'CameraInfo: {error}') from None
 
     def to_camera_info(self, header=None):
         """``sensor_msgs/CameraInfo`` of this camera; ``header`` defaults to one with ``frame_id`` only."""
@@ -194,6 +220,17 @@ class CameraModel:
             width=self.width, height=self.height, distortion_model=DISTORTION_MODEL,
             D=d['distortion_coefficients']['data'], K=d['camera_matrix']['data'],
             R=d['rectification_matrix']['data'], P=d['projection_matrix']['data'])
+
+
+def _camera_info_from_dict(d):
+    """A CameraInfo-shaped namespace of a ``rostopic echo`` mapping (missing fields as the message's defaults)."""
+    roi = d.get('roi') or {}
+    header = d.get('header') or {}
+    return types.SimpleNamespace(
+        width=int(d.get('width', 0)), height=int(d.get('height', 0)), K=list(d['K']), D=list(d.get('D') or []),
+        distortion_model=d.get('distortion_model', ''), binning_x=int(d.get('binning_x', 0)),
+        binning_y=int(d.get('binning_y', 0)), header=types.SimpleNamespace(frame_id=str(header.get('frame_id', ''))),
+        roi=types.SimpleNamespace(**{k: int(roi.get(k, 0)) for k in ('x_offset', 'y_offset', 'width', 'height')}))
 
 
 def load_default_camera():

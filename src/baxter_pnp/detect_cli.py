@@ -24,7 +24,8 @@ def parse_args(argv):
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('images', nargs='+', metavar='IMAGE', help='image files (any format OpenCV reads)')
     parser.add_argument('--camera-info', metavar='YAML',
-                        help='camera calibration (camera_calibration_parsers YAML); default: the thesis calibration')
+                        help='camera calibration: a camera_calibration_parsers YAML, or a CameraInfo as `rostopic echo` '
+                             'prints it (ROI and binning applied); default: the thesis calibration')
     parser.add_argument('--side', type=float, required=True, help='side length of the block (m), e.g. 0.04')
     parser.add_argument('--height', type=float, default=0.02, help='height of the block (m), default 0.02')
     parser.add_argument('--shape', choices=sorted(models.SHAPES), help='only this shape')

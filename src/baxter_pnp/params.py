@@ -86,6 +86,8 @@ def _convert(annotation, value, key):
     if origin is dict or annotation is dict:
         if not isinstance(value, dict):
             raise _type_error(key, 'a mapping', value)
+        if len(args) == 2:
+            return {_convert(args[0], k, key): _convert(args[1], v, join_key(key, str(k))) for k, v in value.items()}
         return value
     if isinstance(annotation, type) and issubclass(annotation, Parameters):
         if isinstance(value, annotation):

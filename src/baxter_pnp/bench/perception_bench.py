@@ -178,10 +178,11 @@ def main(argv=None):
     parser.add_argument('--frames', type=int, default=300, help='frames in the mixed and green40 datasets')
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--out', default='out/bench_perception', help='directory for the CSV and JSON results')
+    parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
     args = parser.parse_args(argv)
     limit_to_one_core()
     camera = camera_module.load_default_camera()
-    config = vision.VisionConfig.from_yaml()
+    config = vision.VisionConfig.from_yaml(args.vision_config)
     rows = []
     plan = [('mixed', args.frames), ('green40', args.frames), ('depth161', 56)]
     for offset, (kind, count) in enumerate(plan):

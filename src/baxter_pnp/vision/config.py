@@ -1,7 +1,9 @@
-"""Parameters of the vision pipeline (``config/vision.yaml``): lengths in pixels of the full-resolution image,
-colour ranges in OpenCV's HSV (hue 0-179, saturation and value 0-255)."""
+"""Parameters of the vision pipeline (``config/vision.yaml``): lengths in pixels of the full-resolution image;
+the thesis's colour ranges in OpenCV's HSV (hue 0-179, saturation and value 0-255), the chroma pipeline's colour
+classes in CIELAB (L* 0-100, chroma in a*b* units, hue angle in degrees)."""
 import os
 from dataclasses import dataclass, field
+from typing import Dict
 
 from baxter_pnp.params import ParameterError, Parameters
 from baxter_pnp.runtime import PACKAGE_ROOT
@@ -55,13 +57,52 @@ class SubpixelConfig(Parameters):
     max_shift_px: float = 5.0
 
 
+PIPELINES = ('chroma', 'thesis')
+
+
+@dataclass(frozen=True)
+class ColourClass(Parameters):
+    """A colour of the chroma pipeline: CIELAB hue angle within ``hue_deg`` +- ``hue_half_width_deg`` (deg),
+    chroma at least ``min_chroma``, lightness L* at least ``min_lightness`` (0-100)."""
+    hue_deg: float
+    hue_half_width_deg: float
+    min_chroma: float = 20.0
+    min_lightness: float = 8.0
+
+    def validate(self):
+        self.require(0.0 < self.hue_half_width_deg <= 90.0, 'hue_half_width_deg', 'must be in (0, 90] deg')
+        self.require(self.min_chroma >= 5.0, 'min_chroma',
+                     'must be >= 5 (below that, grey and black pixels are a colour)')
+        self.require(0.0 <= self.min_lightness < 100.0, 'min_lightness', 'must be in [0, 100)')
+
+
+@dataclass(frozen=True)
+class ChromaConfig(Parameters):
+    """The chroma pipeline (``vision.chroma``): white balance from the image (gains clipped to ``max_gain``),
+    the colour ``classes``, and ``min_fill``: the least fraction of a detected polygon its colour covers
+    (a die's pips leave most of its face; a yellow box with a red button in it does not)."""
+    white_balance: bool = True
+    max_gain: float = 2.0
+    min_fill: float = 0.7
+    classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(140.0, 35.0)})
+
+    def validate(self):
+        self.require(self.max_gain >= 1.0, 'max_gain', 'must be >= 1')
+        self.require(0.0 <= self.min_fill <= 1.0, 'min_fill', 'must be in [0, 1]')
+        self.require(bool(self.classes), 'classes', 'must define at least one colour')
+
+
 @dataclass(frozen=True)
 class VisionConfig(Parameters):
     """Parameters of the pipeline; the fields mirror ``config/vision.yaml`` (see its comments).
 
-    ``colours`` maps a colour name to a tuple of inclusive HSV ranges ``((h, s, v) low, (h, s, v) high)``
-    whose masks are OR-ed (red needs two: its hue wraps around 0); given as YAML lists, parsed on construction.
+    ``pipeline``: the colour stage, ``chroma`` (``chroma.classes``) or ``thesis`` (the thesis's over-saturation
+    and ``colours``). ``colours`` maps a colour name to a tuple of inclusive HSV ranges ``((h, s, v) low,
+    (h, s, v) high)`` whose masks are OR-ed (red needs two: its hue wraps around 0); given as YAML lists,
+    parsed on construction.
     """
+    pipeline: str = 'chroma'
+    chroma: ChromaConfig = field(default_factory=ChromaConfig)
     gamma: float = 0.6
     saturation_epsilon: float = 2.25
     min_saturation_threshold: float = 30.0
@@ -89,11 +130,12 @@ class VisionConfig(Parameters):
         self.require(self.saturation_epsilon > 0, 'saturation_epsilon', 'must be > 0')
         self.require(self.lowpass_b >= 0, 'lowpass_b', 'must be >= 0')
         self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
+        self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
 
     def colour_names(self):
-        """Names of the configured colours, in YAML order."""
-        return list(self.colours)
+        """Names of the colours of the active pipeline, in YAML order."""
+        return list(self.chroma.classes if self.pipeline == 'chroma' else self.colours)
 
     @classmethod
     def from_yaml(cls, path=None):

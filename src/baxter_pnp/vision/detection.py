@@ -8,10 +8,11 @@ import cv2
 import numpy as np
 
 from baxter_pnp.models import SHAPES
+from baxter_pnp.vision import chroma
 from baxter_pnp.vision.colour import (colour_mask, dynamic_threshold, find_blobs, laplacian_sharpen, open_close,
                                       oversaturated_hsv)
-from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, merge_close_vertices,
-                                       order_vertices, remove_cut_corners)
+from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, looks_round,
+                                       merge_close_vertices, order_vertices, remove_cut_corners)
 from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
@@ -64,44 +65,69 @@ def detect(image_bgr, config, colours=None, shapes=None):
     """
     image_bgr = validate_image(image_bgr)
     colours = config.colour_names() if colours is None else list(colours)
-    unknown = [c for c in colours if c not in config.colours]
+    unknown = [c for c in colours if c not in config.colour_names()]
     if unknown:
         raise ValueError(f'detect: unknown colour(s) {unknown}; configured: {config.colour_names()}')
     shapes = set(SHAPES) if shapes is None else set(shapes)
     if not shapes <= set(SHAPES):
         raise ValueError(f'detect: unknown shape(s) {sorted(shapes - set(SHAPES))}; known: {sorted(SHAPES)}')
-    ranges = {name: config.colours[name] for name in colours}
+    segmenter = ColourSegmenter(config, colours)
     if config.roi.enabled:
-        threshold, regions = _candidate_regions(image_bgr, ranges, config)
+        regions = _candidate_regions(image_bgr, segmenter, config)
     else:
-        hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
-        threshold = dynamic_threshold(hsv, config)
-        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(ranges))]
+        segmenter.adapt(image_bgr)
+        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(colours))]
     detections = []
     for region, region_colours in regions:
-        region_ranges = {name: r for name, r in ranges.items() if name in region_colours}
-        detections.extend(_detect_in_region(image_bgr, region, threshold, region_ranges, shapes, config))
+        detections.extend(_detect_in_region(image_bgr, region, segmenter, region_colours, shapes, config))
     detections.sort(key=lambda d: -d.area_px)
     return detections
 
 
-def _candidate_regions(image_bgr, ranges, config):
-    """``(threshold, regions)``: eq. 3.14's threshold and the regions ``((x0, y0, x1, y1), colours)`` to search.
+class ColourSegmenter:
+    """The colour stage of the configured pipeline: per-image adaptation, then binary masks of image regions.
 
-    Runs stages 1-6 on the image subsampled by ``roi.downsample`` (nearest pixel); each blob of a
+    ``thesis``: eq. 3.14's dynamic saturation threshold (``adapt``) and Algorithm 1's over-saturated HSV
+    ranges; ``chroma``: white-balance gains (``adapt``) and CIELAB colour classes (``vision.chroma``).
+    """
+
+    def __init__(self, config, colours):
+        self.config = config
+        self.colours = list(colours)
+        self._threshold = None
+        self._gains = None
+
+    def adapt(self, image_bgr):
+        """Take the image-wide quantities (threshold or white balance) from ``image_bgr`` (any scale)."""
+        if self.config.pipeline == 'chroma':
+            self._gains = chroma.white_balance_gains(image_bgr, self.config.chroma)
+        else:
+            self._threshold = dynamic_threshold(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self.config)
+
+    def masks(self, image_bgr, colours=None):
+        """{colour: uint8 mask (255 inside)} of ``image_bgr`` (a region of the adapted image) for ``colours``."""
+        colours = self.colours if colours is None else [c for c in self.colours if c in colours]
+        if self.config.pipeline == 'chroma':
+            lab = chroma.balanced_lab(image_bgr, self._gains)
+            return chroma.class_masks(lab, {c: self.config.chroma.classes[c] for c in colours})
+        oversaturated = oversaturated_hsv(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._threshold, self.config)
+        return {c: colour_mask(oversaturated, self.config.colours[c]) for c in colours}
+
+
+def _candidate_regions(image_bgr, segmenter, config):
+    """The regions ``((x0, y0, x1, y1), colours)`` to search, ``segmenter`` adapted to the image on the way.
+
+    Runs the colour stage on the image subsampled by ``roi.downsample`` (nearest pixel); each blob of a
     colour gives a box padded by ``roi.padding_px``; overlapping boxes are merged (with their
     colours) so that every blob lies whole inside exactly one region.
     """
     f = config.roi.downsample
     h, w = image_bgr.shape[:2]
     small = cv2.resize(image_bgr, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_NEAREST)
-    hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
-    threshold = dynamic_threshold(hsv, config)
-    oversaturated = oversaturated_hsv(hsv, threshold, config)
+    segmenter.adapt(small)
     pad = config.roi.padding_px
     boxes = []
-    for colour, colour_ranges in ranges.items():
-        mask = colour_mask(oversaturated, colour_ranges)
+    for colour, mask in segmenter.masks(small).items():
         if not cv2.countNonZero(mask):
             continue
         _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -109,7 +135,7 @@ def _candidate_regions(image_bgr, ranges, config):
             if area * f * f >= 0.25 * config.min_area_px:
                 boxes.append(((max(0, x * f - pad), max(0, y * f - pad),
                                min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour}))
-    return threshold, _merge_boxes(boxes)
+    return _merge_boxes(boxes)
 
 
 def _merge_boxes(boxes):
@@ -132,26 +158,38 @@ def _merge_boxes(boxes):
     return boxes
 
 
-def _detect_in_region(image_bgr, region, threshold, ranges, shapes, config):
-    """Detections of the colours in ``ranges`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
+def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
+    """Detections of ``colours`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
     x0, y0, x1, y1 = region
     crop = image_bgr[y0:y1, x0:x1]
     hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
-    oversaturated = oversaturated_hsv(hsv, threshold, config)
     offset = np.array([x0, y0])
     detections = []
-    for colour, colour_ranges in ranges.items():
-        mask = colour_mask(oversaturated, colour_ranges)
-        if not cv2.countNonZero(mask):
+    for colour, raw_mask in segmenter.masks(crop, colours).items():
+        if not cv2.countNonZero(raw_mask):
             continue
-        mask = open_close(mask, config.morphology_kernel_px)
+        mask = open_close(raw_mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
             outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
             detection = None if outline is None else _polygon_detection(image_bgr, outline, offset, colour, config)
-            if detection is not None and detection.shape in shapes:
-                detections.append(detection)
+            if detection is None or detection.shape not in shapes:
+                continue
+            if config.pipeline == 'chroma' and (
+                    looks_round(outline, detection.vertices_px - offset)
+                    or colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
+                continue
+            detections.append(detection)
     return detections
+
+
+def colour_fill(mask, vertices_px):
+    """Fraction of the polygon ``vertices_px`` (n, 2), shrunk by one pixel, that ``mask`` covers (0 if empty)."""
+    inside = np.zeros(mask.shape, np.uint8)
+    cv2.fillPoly(inside, [np.round(vertices_px * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
+    inside = cv2.erode(inside, np.ones((3, 3), np.uint8))
+    total = cv2.countNonZero(inside)
+    return cv2.countNonZero(cv2.bitwise_and(mask, inside)) / total if total else 0.0
 
 
 def _polygon_detection(image_bgr, outline, offset, colour, config):

@@ -11,6 +11,7 @@ import numpy as np
 from baxter_pnp.models import SHAPES
 
 SHAPE_OF_VERTEX_COUNT = {n: shape for shape, n in SHAPES.items()}
+ROUND_RESIDUAL_RATIO = 0.8    # looks_round: an ellipse must fit the outline this much better than the polygon
 _MAX_SIDE_FIT_POINTS = 240     # fit_polygon_sides: a longer contour is subsampled to about this many points
 
 
@@ -139,3 +140,29 @@ def intersect_lines(points_a, directions_a, points_b, directions_b):
     t = (gap[:, 0] * directions_b[:, 1] - gap[:, 1] * directions_b[:, 0]) / np.where(crossing, cross, 1.0)
     return np.where(crossing[:, None], points_a + t[:, None] * directions_a, np.nan)
 
+
+
+def looks_round(contour, vertices):
+    """True when an ellipse explains the outline ``contour`` (M, 1, 2) better than the polygon ``vertices`` (k, 2).
+
+    A disc (a button, a cylinder's end) is cut into five or six sides by the polygon stages; its outline then
+    bulges between the vertices, while an ellipse fits it to the pixel grid. Compares the mean distance (px)
+    of the outline points to the fitted ellipse and to the polygon's boundary; round when the ellipse's is
+    below ``ROUND_RESIDUAL_RATIO`` of the polygon's. False for fewer than 5 vertices or outline points.
+    """
+    points = contour.reshape(-1, 2).astype(np.float32)
+    if len(vertices) < 5 or len(points) < 5:
+        return False
+    (cu, cv), (width, height), angle = cv2.fitEllipse(points)
+    if min(width, height) <= 0:
+        return False
+    polygon = np.asarray(vertices, np.float32).reshape(-1, 1, 2)
+    polygon_residual = np.mean([abs(cv2.pointPolygonTest(polygon, (float(u), float(v)), True)) for u, v in points])
+    # distance to the ellipse, to first order: radial offset in the unit-circle frame x the local semi-axis
+    c, s = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+    du, dv = points[:, 0] - cu, points[:, 1] - cv
+    x, y = (c * du + s * dv) / (width / 2.0), (-s * du + c * dv) / (height / 2.0)
+    radius = np.hypot(x, y)
+    local_axis = np.hypot(x * width / 2.0, y * height / 2.0) / np.maximum(radius, 1e-9)
+    ellipse_residual = float(np.mean(np.abs(radius - 1.0) * local_axis))
+    return ellipse_residual < ROUND_RESIDUAL_RATIO * polygon_residual

@@ -1,0 +1,106 @@
+"""The chroma colour stage (the default ``pipeline: chroma``): BGR uint8 in -> one binary mask per colour class out.
+
+Built for real cameras: the image is white-balanced from its own achromatic majority (the table), converted to
+CIELAB, and a pixel belongs to a colour class when its hue angle in the a*b* plane lies in the class's sector and
+its chroma and lightness clear the class's floors. Black, white and grey have (near) zero chroma whatever the
+exposure, so they are never a colour; the floor on lightness keeps the chroma noise of near-black pixels out.
+Units: CIELAB as OpenCV's 8-bit conversion gives it, rescaled to L* 0-100 and a*, b* (and chroma) in CIELAB
+units; hue angles in degrees (0 = +a*, 90 = +b*). Images indexed [row, column].
+"""
+import functools
+
+import cv2
+import numpy as np
+
+_LAB_SCALE = 255.0 / 100.0          # OpenCV 8-bit L = L* * 255 / 100; a = a* + 128; b = b* + 128
+
+
+def white_balance_gains(image_bgr, config):
+    """(3,) float32 per-channel gains (B, G, R) that make the image's achromatic majority grey.
+
+    The illuminant is the per-channel median of the pixels of mid lightness (neither clipped nor near
+    black; on a cell that is mostly the table) whose chroma is below the image's median chroma; the
+    gains scale each channel to their mean, clipped to ``1 / max_gain .. max_gain`` so a frame filled by
+    one coloured object cannot be turned grey. Ones when disabled or when too few pixels qualify.
+    """
+    if not config.white_balance:
+        return np.ones(3, np.float32)
+    lab = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2LAB)
+    lightness = lab[..., 0]
+    chroma = np.hypot(lab[..., 1].astype(np.float32) - 128.0, lab[..., 2].astype(np.float32) - 128.0)
+    mid = (lightness >= 20 * _LAB_SCALE) & (lightness <= 95 * _LAB_SCALE)
+    if np.count_nonzero(mid) < 0.05 * mid.size:
+        return np.ones(3, np.float32)
+    grey = mid & (chroma <= np.median(chroma[mid]))
+    illuminant = np.median(image_bgr[grey].astype(np.float32), axis=0)
+    if np.any(illuminant < 1.0):
+        return np.ones(3, np.float32)
+    gains = illuminant.mean() / illuminant
+    return np.clip(gains, 1.0 / config.max_gain, config.max_gain).astype(np.float32)
+
+
+def balanced_lab(image_bgr, gains):
+    """The image scaled per channel by ``gains`` (saturating) and converted to 8-bit CIELAB (OpenCV's scales)."""
+    if np.all(gains == 1.0):
+        balanced = image_bgr
+    else:
+        balanced = cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
+    return cv2.cvtColor(balanced, cv2.COLOR_BGR2LAB)
+
+
+def class_masks(lab, classes):
+    """{name: uint8 mask (255 inside)} of the pixels of the 8-bit CIELAB image ``lab`` in each ``ColourClass``."""
+    lightness, a, b = cv2.split(lab)
+    masks = {}
+    for name, colour_class in classes.items():
+        ab_mask = _ab_table(colour_class)[a, b]
+        _, bright = cv2.threshold(lightness, colour_class.min_lightness * _LAB_SCALE - 1e-6, 255, cv2.THRESH_BINARY)
+        masks[name] = cv2.bitwise_and(ab_mask, bright)
+    return masks
+
+
+@functools.lru_cache(maxsize=32)
+def _ab_table(colour_class):
+    """(256, 256) uint8 table over OpenCV's 8-bit (a, b): 255 where hue and chroma are in ``colour_class``."""
+    a, b = np.meshgrid(np.arange(256) - 128.0, np.arange(256) - 128.0, indexing='ij')
+    hue = np.degrees(np.arctan2(b, a))
+    off = (hue - colour_class.hue_deg + 180.0) % 360.0 - 180.0
+    inside = (np.abs(off) <= colour_class.hue_half_width_deg) & (np.hypot(a, b) >= colour_class.min_chroma)
+    table = np.where(inside, 255, 0).astype(np.uint8)
+    table.flags.writeable = False
+    return table
+
+
+def hue_and_chroma(lab_pixels):
+    """((n,) hue angle deg in [0, 360), (n,) chroma, (n,) L*) of (n, 3) 8-bit CIELAB pixels."""
+    pixels = np.asarray(lab_pixels, dtype=float).reshape(-1, 3)
+    a, b = pixels[:, 1] - 128.0, pixels[:, 2] - 128.0
+    return np.degrees(np.arctan2(b, a)) % 360.0, np.hypot(a, b), pixels[:, 0] / _LAB_SCALE
+
+
+def learn_colour_class(image_bgr, roi, config, min_sample_chroma=10.0):
+    """``(hue_deg, hue_half_width_deg, min_chroma, min_lightness)`` of a colour from a view of one block.
+
+    ``roi`` = (x, y, width, height) px around the block (a little table around it does no harm: pixels
+    below ``min_sample_chroma`` are the achromatic background and are left out); the image is
+    white-balanced as detection will balance it (``config``: a ``ChromaConfig``). The sector is the
+    circular mean hue +- 3 circular standard deviations (10-60 deg); the floors are half the 5th
+    percentiles of chroma and lightness (at least 15 and 3), so the block's shaded side faces and dimmer
+    views still belong. ValueError when the region holds fewer than 30 coloured pixels.
+    """
+    x, y, w, h = (int(v) for v in roi)
+    if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > image_bgr.shape[1] or y + h > image_bgr.shape[0]:
+        raise ValueError(f'roi {x},{y},{w},{h} is not inside the {image_bgr.shape[1]}x{image_bgr.shape[0]} image')
+    lab = balanced_lab(image_bgr, white_balance_gains(image_bgr, config))[y:y + h, x:x + w]
+    hue, chroma, lightness = hue_and_chroma(lab)
+    coloured = chroma >= min_sample_chroma
+    if np.count_nonzero(coloured) < 30:
+        raise ValueError(f'only {np.count_nonzero(coloured)} coloured pixels in the roi (need 30): '
+                         'is the block inside it, and is it coloured?')
+    angles = np.radians(hue[coloured])
+    mean_vector = np.array([np.cos(angles).mean(), np.sin(angles).mean()])
+    spread = np.degrees(np.sqrt(-2.0 * np.log(max(np.hypot(*mean_vector), 1e-9))))
+    return (float(np.degrees(np.arctan2(mean_vector[1], mean_vector[0])) % 360.0),
+            float(np.clip(3.0 * spread, 10.0, 60.0)),
+            float(max(15.0, 0.5 * np.percentile(chroma[coloured], 5))),
+            float(max(3.0, 0.5 * np.percentile(lightness[coloured], 5))))

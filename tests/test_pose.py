@@ -328,27 +328,87 @@ def test_covariance_matches_monte_carlo_spread(camera):
     assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
 
 
+# The README's perception benchmark ("Perception", make bench-perception) measured on rendered 40 mm squares:
+# vertex error 0.084 px (green40) and 0.059 px (depth161), mean distance per vertex. Gaussian noise of
+# sigma = mean / sqrt(pi / 2) per coordinate gives the estimator those vertex errors.
+GREEN40_SIGMA_PX = 0.084 / math.sqrt(math.pi / 2)
+DEPTH161_SIGMA_PX = 0.059 / math.sqrt(math.pi / 2)
+
+
+def errors_mm_deg(samples, camera, model, method, use_plane):
+    """(position errors mm, rotation errors deg, depth errors mm) over ``samples`` = [(T_camera_object, px)]."""
+    position, rotation, depth = [], [], []
+    for T, px in samples:
+        plane = table_plane_for(T, model) if use_plane else None
+        estimate = estimate_pose(px, camera, model, method=method, table_plane=plane)
+        position.append(1e3 * np.linalg.norm(estimate.position_m - T[:3, 3]))
+        rotation.append(math.degrees(rotation_error(estimate.T_camera_object[:3, :3], T[:3, :3], model.n)))
+        depth.append(1e3 * (estimate.depth_m - T[2, 3]))
+    return np.array(position), np.array(rotation), np.array(depth)
+
+
+def test_accuracy_of_40_mm_squares_at_the_detectors_vertex_error(camera):
+    """README green40 (100 random views 0.10-0.40 m, tilt up to 35 deg, 0.084 px vertex error): SQP position
+    median 0.15 mm, p90 1.00 mm (targets 1 and 3 mm), orientation p90 0.86 deg; with the table plane p90
+    0.82 mm and 0.27 deg, 4x better in orientation than IPPE. Bounds: the README's numbers; the median gets
+    0.1 mm more (i.i.d. Gaussian noise is not the detector's error; 0.12-0.17 mm over three seeds)."""
+    model = model_for('square', SIDE)
+    rng = np.random.default_rng(17)
+    frames = [(T, observe(T, camera, model, rng, sigma_px=GREEN40_SIGMA_PX))
+              for T in (random_pose(rng, camera, model) for _ in range(100))]
+    position, rotation, _ = errors_mm_deg(frames, camera, model, 'sqp', use_plane=False)
+    assert np.median(position) < 0.25 and np.percentile(position, 90) < 1.0
+    assert np.percentile(rotation, 90) < 0.86
+    position, rotation_plane, _ = errors_mm_deg(frames, camera, model, 'sqp', use_plane=True)
+    assert np.percentile(position, 90) < 0.82 and np.percentile(rotation_plane, 90) < 0.27
+    _, rotation_ippe, _ = errors_mm_deg(frames, camera, model, 'ippe', use_plane=False)
+    assert np.percentile(rotation_plane, 90) < np.percentile(rotation_ippe, 90) / 3      # README: 4x (5x measured)
+
+
+def test_depth_straight_on_at_161_mm_at_the_detectors_vertex_error(camera):
+    """README depth161 (56 views of a 40 mm square straight on at 161 mm, 0.059 px vertex error): SQP mean |dZ|
+    0.06 mm (target 0.5 mm), orientation p90 0.56 deg vs IPPE's 2.07, 0.12 deg with the plane. Bounds: those
+    numbers plus 0.04 mm / 0.04 deg for the 56-sample spread (0.03-0.04 mm, 0.48-0.50 deg over three seeds)."""
+    model = model_for('square', SIDE)
+    rng = np.random.default_rng(18)
+    samples = [(T, observe(T, camera, model, rng, sigma_px=DEPTH161_SIGMA_PX))
+               for T in (straight_on_pose(rng) for _ in range(56))]
+    _, rotation, depth = errors_mm_deg(samples, camera, model, 'sqp', use_plane=False)
+    assert np.mean(np.abs(depth)) < 0.1
+    assert np.percentile(rotation, 90) < 0.6
+    _, rotation_plane, _ = errors_mm_deg(samples, camera, model, 'sqp', use_plane=True)
+    assert np.percentile(rotation_plane, 90) < 0.16
+    _, rotation_ippe, _ = errors_mm_deg(samples, camera, model, 'ippe', use_plane=False)
+    assert np.percentile(rotation, 90) < np.percentile(rotation_ippe, 90) / 2        # README: 3.7x
+
+
 def test_report_speed_and_depth_error(camera):
-    """Report only (run with -s): median time per call and depth error vs vertex noise; asserts only trends."""
+    """Median CPU time per call (run with -s to see) and depth error vs vertex noise: the error grows with the
+    noise, and SQP (0.5 px noise) stays within 10 ms: a guard against a gross slowdown, not the README's number
+    (3 ms per frame for vision + SQP, about 0.8 ms for SQP alone, measured by make bench-perception on a quiet
+    machine). CPU time of this process, the fastest of three repetitions, not wall time; still, on this shared
+    virtual machine it includes the load: 1.8-3.4 ms per SQP call measured at load averages of 3-7 on 2 cores."""
     model = model_for('square', SIDE)
     rng = np.random.default_rng(17)
     frames = [(T, observe(T, camera, model, rng, sigma_px=0.5))
               for T in (random_pose(rng, camera, model) for _ in range(100))]
-    lines = []
+    lines, cpu_ms = [], {}
     for method in pose.METHODS:
         for use_plane in (False, True):
-            times = []
-            for T, px in frames:
-                plane = table_plane_for(T, model) if use_plane else None
-                start = time.perf_counter()
-                estimate_pose(px, camera, model, method=method, table_plane=plane)
-                times.append(time.perf_counter() - start)
-            lines.append(f'{method}{" +plane" if use_plane else ""}: {1e3 * np.median(times):.3f} ms median per call')
+            repetitions = []          # SQP's fastest of three: what the estimator costs, not what the load adds
+            for _ in range(3 if method == 'sqp' else 1):
+                start = time.process_time()
+                for T, px in frames:
+                    estimate_pose(px, camera, model, method=method,
+                                  table_plane=table_plane_for(T, model) if use_plane else None)
+                repetitions.append(1e3 * (time.process_time() - start) / len(frames))
+            cpu_ms[method, use_plane] = min(repetitions)
+            lines.append(f'{method}{" +plane" if use_plane else ""}: {cpu_ms[method, use_plane]:.3f} ms CPU per call')
     errors = {}
     for sigma in (0.1, 0.3, 0.5):
         for method in pose.METHODS:
             rng = np.random.default_rng(18)
-            poses = [straight_on_pose(rng) for _ in range(200)]
+            poses = [straight_on_pose(rng) for _ in range(100)]
             samples = [(T, observe(T, camera, model, rng, sigma_px=sigma)) for T in poses]
             errors[sigma, method] = np.mean([abs(estimate_pose(px, camera, model, method=method).depth_m - T[2, 3])
                                              for T, px in samples])
@@ -357,3 +417,4 @@ def test_report_speed_and_depth_error(camera):
     print('\n' + '\n'.join(lines))
     for method in pose.METHODS:
         assert errors[0.1, method] < errors[0.3, method] < errors[0.5, method]
+    assert max(cpu_ms['sqp', False], cpu_ms['sqp', True]) < 10.0

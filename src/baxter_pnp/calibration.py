@@ -3,7 +3,10 @@
 Corners: ``cv2.findChessboardCorners`` refined by ``cv2.cornerSubPix``; intrinsics: ``cv2.calibrateCamera``
 with the 5-coefficient plumb-bob model (k1, k2, p1, p2, k3). A pattern is given as (columns, rows)
 of **inner** corners (a 10 x 7-square board is ``9x6``), the square size in metres. Reprojection
-errors are RMS distances in pixels. ``main`` is the ``scripts/calibrate_camera.py`` entry point.
+errors are RMS distances in pixels. A board whose RMS error is an outlier (over ``OUTLIER_FACTOR`` times the
+median of the others and over ``OUTLIER_FLOOR_PX``: typically one corner the detector put on the wrong spot,
+which ``cornerSubPix`` cannot pull back from several pixels away) is left out and the calibration redone, one
+board at a time, as long as ``MIN_BOARDS`` remain. ``main`` is the ``scripts/calibrate_camera.py`` entry point.
 """
 import argparse
 import os
@@ -17,6 +20,8 @@ from baxter_pnp.camera import CameraModel
 
 IMAGE_EXTENSIONS = ('.png', '.jpg', '.jpeg', '.bmp', '.tif', '.tiff', '.pgm', '.ppm')
 MIN_BOARDS = 3
+OUTLIER_FACTOR = 3.0       # a board's RMS over this many times the median of the others' ...
+OUTLIER_FLOOR_PX = 0.3     # ... and over this (px) is an outlier
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
 
 
@@ -31,6 +36,7 @@ class CalibrationResult:
     rms_px: float
     per_image_rms_px: dict = field(default_factory=dict)    # image name -> RMS error (px)
     boards_not_found: list = field(default_factory=list)    # image names without a detected board
+    outliers_px: dict = field(default_factory=dict)         # left-out image name -> its RMS error (px) then
 
 
 def board_object_points(pattern, square):
@@ -69,14 +75,28 @@ def calibrate(images, pattern, square, camera_name='left_hand_camera'):
                                f'{len(images)} images; at least {MIN_BOARDS} are needed')
     height, width = sizes.pop()
     object_points = board_object_points(pattern, square)
-    rms, K, D, rvecs, tvecs = cv2.calibrateCamera(
-        [object_points] * len(found), [corners for _, corners in found], (width, height), None, None)
+    outliers = {}
+    while True:
+        rms, K, D, per_image = _calibrate_boards(found, object_points, (width, height))
+        worst = max(per_image, key=per_image.get)
+        others = np.median([error for name, error in per_image.items() if name != worst])
+        if len(found) <= MIN_BOARDS or per_image[worst] <= max(OUTLIER_FACTOR * others, OUTLIER_FLOOR_PX):
+            break
+        outliers[worst] = per_image[worst]
+        found = [(name, corners) for name, corners in found if name != worst]
+    camera = CameraModel(width, height, K, D.ravel()[:5], name=camera_name)
+    return CalibrationResult(camera, float(rms), per_image, missing, outliers)
+
+
+def _calibrate_boards(found, object_points, size):
+    """OpenCV calibration of ``found`` = [(name, corners)]: (RMS px, K, D, {name: RMS px})."""
+    rms, K, D, rvecs, tvecs = cv2.calibrateCamera([object_points] * len(found), [c for _, c in found], size,
+                                                  None, None)
     per_image = {}
     for (name, corners), rvec, tvec in zip(found, rvecs, tvecs):
         projected, _ = cv2.projectPoints(object_points, rvec, tvec, K, D)
         per_image[name] = float(np.sqrt(np.mean(np.sum((projected - corners) ** 2, axis=2))))
-    camera = CameraModel(width, height, K, D.ravel()[:5], name=camera_name)
-    return CalibrationResult(camera, float(rms), per_image, missing)
+    return rms, K, D, per_image
 
 
 def load_images(images_dir):
@@ -133,6 +153,9 @@ def main(argv=None):
         print(f'{name}: {error_px:.3f} px')
     if result.boards_not_found:
         print('no board found in: ' + ', '.join(result.boards_not_found))
+    if result.outliers_px:
+        print('left out as outliers (a misplaced corner? check the image): '
+              + ', '.join(f'{name} ({error_px:.3f} px)' for name, error_px in result.outliers_px.items()))
     camera = result.camera
     print(f'{len(result.per_image_rms_px)} boards, RMS reprojection error {result.rms_px:.3f} px')
     print(f'fx {camera.fx:.5f}  fy {camera.fy:.5f}  cx {camera.cx:.5f}  cy {camera.cy:.5f}')

@@ -1,4 +1,5 @@
-"""`rostest baxter_pnp pick_square.test` runs one headless pick (fake Baxter + app + result check) and passes."""
+"""`rostest baxter_pnp pick_square.test` runs one headless pick (fake Baxter + app + check node) and passes: the
+check node (tests/check_pick_result.py) judges the pick by the fake's ground truth, not only by the app's result."""
 import os
 import subprocess
 
@@ -13,4 +14,5 @@ def test_rostest_pick_square(tmp_path):
     output = result.stdout + result.stderr
     assert result.returncode == 0, output[-4000:]
     assert 'RESULT: SUCCESS' in output and 'FAILURES: 0' in output
+    assert '[baxter_pnp.rosunit-pick_square_result/test_verified_pick][passed]' in output   # the check itself ran
     assert 'pick: SUCCESS' in output

@@ -5,7 +5,10 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import List, Optional
 
-from baxter_pnp.params import Parameters, load_mapping
+import yaml
+
+from baxter_pnp.camera import CameraModel
+from baxter_pnp.params import ParameterError, Parameters, load_mapping
 
 
 @dataclass
@@ -17,7 +20,8 @@ class SessionConfig(Parameters):
     resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
     fps: int = 20                           # hand camera rate (Hz)
     camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
-                                            # camera_info; scaled to the camera mode if calibrated at another size
+                                            # camera_info; scaled to the camera mode if calibrated at another size;
+                                            # read when validated (a wrong file is a bad parameter)
     speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
     table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
     tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
@@ -40,6 +44,11 @@ class SessionConfig(Parameters):
         self.require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
         self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
         self.require(self.max_recoveries >= 0, 'max_recoveries', 'must be >= 0')
+        if self.camera_calibration is not None:     # read now: a wrong file is a bad parameter, before connecting
+            try:
+                CameraModel.from_yaml(self.camera_calibration)
+            except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
+                raise ParameterError('camera_calibration', 'not a readable camera calibration: %s' % error) from None
 
 
 def field_names(config_class):

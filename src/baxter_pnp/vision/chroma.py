@@ -13,6 +13,9 @@ import cv2
 import numpy as np
 
 _LAB_SCALE = 255.0 / 100.0          # OpenCV 8-bit L = L* * 255 / 100; a = a* + 128; b = b* + 128
+_WB_PIXELS = 2000                   # white_balance_gains: images larger than this are sampled every _WB_STRIDE px
+_WB_STRIDE = 2
+_UNIT_GAIN_TOLERANCE = 0.02         # balanced_lab: gains this close to 1 are not applied (no visible change)
 
 
 def white_balance_gains(image_bgr, config):
@@ -21,18 +24,20 @@ def white_balance_gains(image_bgr, config):
     The illuminant is the per-channel median of the pixels of mid lightness (neither clipped nor near
     black; on a cell that is mostly the table) whose chroma is below the image's median chroma; the
     gains scale each channel to their mean, clipped to ``1 / max_gain .. max_gain`` so a frame filled by
-    one coloured object cannot be turned grey. Ones when disabled or when too few pixels qualify.
+    one coloured object cannot be turned grey. Ones when disabled or when too few pixels qualify. Pass a
+    subsampled image (detection passes the candidate search's); above 2000 px every 2nd pixel is used.
     """
     if not config.white_balance:
         return np.ones(3, np.float32)
-    lab = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2LAB)
-    lightness = lab[..., 0]
-    chroma = np.hypot(lab[..., 1].astype(np.float32) - 128.0, lab[..., 2].astype(np.float32) - 128.0)
-    mid = (lightness >= 20 * _LAB_SCALE) & (lightness <= 95 * _LAB_SCALE)
-    if np.count_nonzero(mid) < 0.05 * mid.size:
+    pixels = image_bgr[::_WB_STRIDE, ::_WB_STRIDE] if image_bgr.size > 3 * _WB_PIXELS else image_bgr
+    lab = cv2.cvtColor(np.ascontiguousarray(pixels), cv2.COLOR_BGR2LAB).reshape(-1, 3)
+    ab = lab[:, 1:].astype(np.int32) - 128
+    chroma_squared = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
+    mid = (lab[:, 0] >= 20 * _LAB_SCALE) & (lab[:, 0] <= 95 * _LAB_SCALE)
+    if np.count_nonzero(mid) < 0.05 * len(mid):
         return np.ones(3, np.float32)
-    grey = mid & (chroma <= np.median(chroma[mid]))
-    illuminant = np.median(image_bgr[grey].astype(np.float32), axis=0)
+    grey = mid & (chroma_squared <= np.median(chroma_squared[mid]))
+    illuminant = np.median(pixels.reshape(-1, 3)[grey], axis=0).astype(np.float32)
     if np.any(illuminant < 1.0):
         return np.ones(3, np.float32)
     gains = illuminant.mean() / illuminant
@@ -40,8 +45,9 @@ def white_balance_gains(image_bgr, config):
 
 
 def balanced_lab(image_bgr, gains):
-    """The image scaled per channel by ``gains`` (saturating) and converted to 8-bit CIELAB (OpenCV's scales)."""
-    if np.all(gains == 1.0):
+    """The image scaled per channel by ``gains`` (saturating; gains within 2 % of 1 are skipped) and converted to
+    8-bit CIELAB (OpenCV's scales)."""
+    if np.all(np.abs(gains - 1.0) <= _UNIT_GAIN_TOLERANCE):
         balanced = image_bgr
     else:
         balanced = cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
@@ -50,23 +56,26 @@ def balanced_lab(image_bgr, gains):
 
 def class_masks(lab, classes):
     """{name: uint8 mask (255 inside)} of the pixels of the 8-bit CIELAB image ``lab`` in each ``ColourClass``."""
-    lightness, a, b = cv2.split(lab)
+    ab_index = (lab[..., 1].astype(np.int32) << 8) | lab[..., 2]
+    bright = {}
     masks = {}
     for name, colour_class in classes.items():
-        ab_mask = _ab_table(colour_class)[a, b]
-        _, bright = cv2.threshold(lightness, colour_class.min_lightness * _LAB_SCALE - 1e-6, 255, cv2.THRESH_BINARY)
-        masks[name] = cv2.bitwise_and(ab_mask, bright)
+        floor = colour_class.min_lightness
+        if floor not in bright:
+            bright[floor] = cv2.threshold(lab[..., 0], floor * _LAB_SCALE - 1e-6, 255, cv2.THRESH_BINARY)[1]
+        masks[name] = cv2.bitwise_and(np.take(_ab_table(colour_class), ab_index), bright[floor])
     return masks
 
 
 @functools.lru_cache(maxsize=32)
 def _ab_table(colour_class):
-    """(256, 256) uint8 table over OpenCV's 8-bit (a, b): 255 where hue and chroma are in ``colour_class``."""
+    """(65536,) uint8 table over OpenCV's 8-bit (a, b), index ``256 a + b``: 255 where hue and chroma are in
+    ``colour_class``."""
     a, b = np.meshgrid(np.arange(256) - 128.0, np.arange(256) - 128.0, indexing='ij')
     hue = np.degrees(np.arctan2(b, a))
     off = (hue - colour_class.hue_deg + 180.0) % 360.0 - 180.0
     inside = (np.abs(off) <= colour_class.hue_half_width_deg) & (np.hypot(a, b) >= colour_class.min_chroma)
-    table = np.where(inside, 255, 0).astype(np.uint8)
+    table = np.where(inside, 255, 0).astype(np.uint8).ravel()
     table.flags.writeable = False
     return table
 

@@ -15,7 +15,6 @@ import numpy as np
 _LAB_SCALE = 255.0 / 100.0          # OpenCV 8-bit L = L* * 255 / 100; a = a* + 128; b = b* + 128
 _WB_PIXELS = 2000                   # white_balance_gains: images larger than this are sampled every _WB_STRIDE px
 _WB_STRIDE = 2
-_UNIT_GAIN_TOLERANCE = 0.02         # balanced_lab: gains this close to 1 are not applied (no visible change)
 
 
 def white_balance_gains(image_bgr, config):
@@ -45,9 +44,8 @@ def white_balance_gains(image_bgr, config):
 
 
 def balanced_lab(image_bgr, gains):
-    """The image scaled per channel by ``gains`` (saturating; gains within 2 % of 1 are skipped) and converted to
-    8-bit CIELAB (OpenCV's scales)."""
-    if np.all(np.abs(gains - 1.0) <= _UNIT_GAIN_TOLERANCE):
+    """The image scaled per channel by ``gains`` (saturating) and converted to 8-bit CIELAB (OpenCV's scales)."""
+    if np.all(gains == 1.0):
         balanced = image_bgr
     else:
         balanced = cv2.transform(image_bgr, np.diag(gains).astype(np.float32))

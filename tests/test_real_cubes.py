@@ -1,0 +1,235 @@
+"""Cubes in real top-down photographs: ``../shared/real/coloured_cubes/cubes_{1,4}.png`` (see its README).
+
+Two 1280x720 Intel RealSense frames of wooden cubes (two sizes), bricks and cylinders on a grey grid board,
+the camera about 1.04 m above it; their red and blue channels are swapped in the files (swapped back here).
+The cubes lying flat are hand-labelled in ``tests/data/real_labels.yaml`` (format and method in its header):
+colour, size, top-face centre and corners. Places where a detection is neither required nor false (tilted,
+stacked or leaning cubes, upright bricks) are its ``ignore`` entries.
+
+For each labelled cube: a detection of its colour and shape ``square`` whose centroid is within
+``CENTROID_TOLERANCE_PX`` of the label's centre, and a pose from ``perception.observe_blocks`` with the cube's
+side and the board as table-plane prior, which must put the top face at the board's distance (less one side),
+face up, and reproject onto the labelled corners. Per photo, the posed square detections on no labelled cube
+and no ignore entry are false detections. Where the current pipeline fails a case, that case is marked
+``xfail(strict=True)`` with the reason: the file passes, and a fixed case turns into an XPASS failure.
+
+Skipped when the folder is absent (``BAXTER_PNP_REAL_DATA`` points elsewhere), as tests/test_real_images.py.
+"""
+import functools
+import os
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from baxter_pnp import camera as camera_module
+from baxter_pnp import models, perception, vision
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REAL = os.environ.get('BAXTER_PNP_REAL_DATA', os.path.join(REPO, '..', 'shared', 'real'))
+CUBES = os.path.join(REAL, 'coloured_cubes')
+LABELS_PATH = os.path.join(REPO, 'tests', 'data', 'real_labels.yaml')
+
+pytestmark = pytest.mark.skipif(not os.path.isdir(CUBES), reason=f'no real images at {CUBES}')
+
+with open(LABELS_PATH) as _f:
+    LABELS = yaml.safe_load(_f)
+
+# A detection's centroid must be this close to the labelled top-face centre: the labels' centres are good to
+# about 1 px (2 px on the least sure ones), a sound detection's centroid to 1-2 px; 4 px is 1/9 of a large
+# cube's side, 1/5 of a small one's, about 4.5 mm on the board.
+CENTROID_TOLERANCE_PX = 4.0
+# The posed model's top-face corners, projected, must each lie this close to a labelled corner (corners are
+# less sure than centres: rounded, worn edges).
+CORNER_TOLERANCE_PX = 5.0
+# The pose's depth against the board's distance less one side: the distance is "about" 1.04 m and the board
+# is tilted with respect to the optical axis (one cube size spans 32-39 px over the photo, +-10 %).
+DEPTH_TOLERANCE_FRACTION = 0.15
+# The top face's normal against the prior (the board's normal).
+TILT_TOLERANCE_DEG = 5.0
+
+CAMERA_INFO = LABELS['camera']
+BOARD_DISTANCE_M = CAMERA_INFO['board_distance_m']
+SIDE_M = {size: entry['side_m'] for size, entry in LABELS['sizes'].items()}
+# The camera looks straight down at the board: the plane Z = 1.04 m of the camera frame, its normal (up,
+# out of the board) pointing back at the camera, -Z.
+TABLE_PLANE = models.Plane([0.0, 0.0, -1.0], -BOARD_DISTANCE_M)
+CAMERA = camera_module.CameraModel(
+    width=CAMERA_INFO['width'], height=CAMERA_INFO['height'],
+    K=[[CAMERA_INFO['fx'], 0.0, CAMERA_INFO['cx']], [0.0, CAMERA_INFO['fy'], CAMERA_INFO['cy']], [0.0, 0.0, 1.0]],
+    D=np.zeros(5), name='realsense', frame_id='realsense')
+
+# Known failures of the current pipeline (config/vision.yaml, chroma), per label id: what it returned and why,
+# from its stages run on the cube (white-balanced CIELAB chroma C and hue h of the top face, mask coverage).
+_BENT = ('pentagon: one edge split in two ({}) by an extra vertex where the top-face outline follows a sliver '
+         'of side face (or a grid line) along part of it')
+_PALE_GREEN = ('nothing: a dark teal-green small cube, C {} (green min_chroma 17){}: the green mask covers {} of '
+               'its top face, no blob of min_area_px 100')
+KNOWN_MISSES = {
+    'c4-08': 'a red pentagon 1.1 px off: the outline keeps part of the side face on its left (1494 px^2 for a '
+             '~1230 px^2 face) and its lower-right edge is bent (19 + 25 px)',
+    'c4-09': 'a blue pentagon 4.2 px off: top-face isolation does not split off the side face along its upper '
+             'left (outline = whole blob, 1563 px^2 for a ~1200 px^2 face), edges 19-43 px',
+    'c4-11': 'a red ' + _BENT.format('10.5 + 12.3 px, the left edge'),
+
+    'c4-17': _PALE_GREEN.format(15, ', h 176 deg at the sector edge (150 +- 40)', '0 %'),
+    'c4-22': 'nothing: the blue blob is found (1158 px^2) but isolate_top_face returns None: specular glare on '
+             'the left half of its top face (the brightest class is the pale glare)',
+
+    'c4-24': 'a blue ' + _BENT.format('16.5 + 19.1 px, the lower-left edge'),
+    'c4-26': 'a green pentagon 1.2 px off: a 5 px edge, two vertices just beyond the merge distance (0.05 x the '
+             '83 px perimeter = 4.2 px)',
+    'c4-27': _PALE_GREEN.format(18, '', '13 %'),
+    'c4-28': 'a blue ' + _BENT.format('15.4 + 19.3 px, the lower-right edge'),
+    'c4-29': 'a green pentagon 2.3 px off from a ragged blob (280 px^2 of ~445): C 21, near the green min_chroma 17, '
+             'the mask covers 77 % of the face',
+    'c4-31': 'a blue ' + _BENT.format('12.6 + 22.8 px, the right edge'),
+    'c4-32': 'a blue ' + _BENT.format('13.5 + 20.6 px, the lower-left edge'),
+
+    'c4-35': _PALE_GREEN.format(18, ', h 183 deg beyond the sector (150 +- 40)', '12 %'),
+    'c4-38': 'a blue ' + _BENT.format('23.5 + 11.4 px, the upper-left edge, where its side face joins'),
+
+    'c4-44': _PALE_GREEN.format(19, ', h 183 deg beyond the sector (150 +- 40)', '29 %'),
+}
+# Labels detected within tolerance whose pose fails a check.
+KNOWN_POSE_FAILURES = {
+    'c4-23': 'detected as a green square, but from the part of the face the mask covers (C about 17, h about 180 '
+             'deg, at the green class edges): posed 1.27 m deep for 1.02 m',
+}
+# Photos with false square detections: the reason.
+KNOWN_FALSE_DETECTIONS = {
+    'cubes_1.png': '7 bricks lying flat (or leaning) taken for squares: 2:1 rectangles have four vertices, and '
+                   '"square" is a vertex count (no aspect check); the pose of a square fitted to them stays under '
+                   'the absurd-residual limit. Yellow (314, 466) 27 x 59 px, green (827, 519) 28 x 50, red '
+                   '(504, 392) 26 x 54, yellow on the desk (115, 579) 22 x 53, green on the desk (1170, 117) '
+                   '25 x 48, red strip of a brick (340, 446) 11 x 52, green leaning brick end (885, 464) 14 x 26',
+}
+
+
+def _cases(known):
+    cases = []
+    for name, entry in LABELS['images'].items():
+        for label in entry['cubes']:
+            marks = ()
+            if label['id'] in known:
+                marks = pytest.mark.xfail(strict=True, reason=known[label['id']])
+            cases.append(pytest.param(name, label, id=label['id'], marks=marks))
+    return cases
+
+
+@functools.lru_cache(maxsize=None)
+def _config():
+    return vision.VisionConfig.from_yaml()
+
+
+@functools.lru_cache(maxsize=None)
+def _image(name):
+    path = os.path.join(CUBES, name)
+    image = cv2.imread(path)
+    assert image is not None, f'cannot read {path}'
+    return np.ascontiguousarray(image[..., ::-1])        # the files hold red and blue swapped
+
+
+@functools.lru_cache(maxsize=None)
+def _detections(name):
+    return tuple(vision.detect(_image(name), _config()))
+
+
+@functools.lru_cache(maxsize=None)
+def _observations(name, size):
+    side = SIDE_M[size]
+    return tuple(perception.observe_blocks(_image(name), CAMERA, _config(), side=side, height=side, shape='square',
+                                           table_plane=TABLE_PLANE))
+
+
+def _distance(a, b):
+    return float(np.linalg.norm(np.asarray(a, float) - np.asarray(b, float)))
+
+
+def _describe(detection, centre):
+    return (f'{detection.colour} {detection.shape} at ({detection.centroid_px[0]:.1f}, {detection.centroid_px[1]:.1f}),'
+            f' {_distance(detection.centroid_px, centre):.1f} px off, area {detection.area_px:.0f} px^2')
+
+
+def _matches(detection, label):
+    return (detection.colour == label['colour'] and detection.shape == 'square'
+            and _distance(detection.centroid_px, label['centre']) <= CENTROID_TOLERANCE_PX)
+
+
+def test_the_labels_are_complete_and_consistent():
+    """Every label has four corners around its centre and a side that fits its size class; ids are unique."""
+    ids = [label['id'] for entry in LABELS['images'].values() for label in entry['cubes']]
+    assert len(ids) == len(set(ids)) and len(ids) >= 30
+    for entry in LABELS['images'].values():
+        for label in entry['cubes']:
+            corners = np.asarray(label['corners'], float)
+            assert corners.shape == (4, 2), label['id']
+            assert _distance(corners.mean(axis=0), label['centre']) < 0.1, label['id']
+            assert label['colour'] in ('red', 'green', 'blue', 'yellow') and label['size'] in SIDE_M, label['id']
+            low, high = LABELS['sizes'][label['size']]['side_px_range']
+            assert low <= label['side_px'] <= high, label['id']
+
+
+@pytest.mark.parametrize('name, label', _cases(KNOWN_MISSES))
+def test_labelled_cube_is_detected(name, label):
+    """A square of the label's colour, its centroid within CENTROID_TOLERANCE_PX of the labelled centre."""
+    centre = label['centre']
+    if any(_matches(d, label) for d in _detections(name)):
+        return
+    nearby = sorted((d for d in _detections(name) if _distance(d.centroid_px, centre) <= label['side_px']),
+                    key=lambda d: _distance(d.centroid_px, centre))
+    pytest.fail(f"{name} {label['id']}: no {label['colour']} square within {CENTROID_TOLERANCE_PX} px of the "
+                f"{label['size']} {label['colour']} cube at {centre}; within one side of it: "
+                + ('; '.join(_describe(d, centre) for d in nearby) or 'nothing'))
+
+
+@pytest.mark.parametrize('name, label', _cases({**{k: 'not detected: ' + v for k, v in KNOWN_MISSES.items()},
+                                                **KNOWN_POSE_FAILURES}))
+def test_labelled_cube_is_posed_on_the_board(name, label):
+    """observe_blocks (the cube's side, the board as the table-plane prior) gives a pose for the matching
+    square: top face one side above the board, face up, its corners on the labelled ones."""
+    side = SIDE_M[label['size']]
+    observations = [o for o in _observations(name, label['size']) if _matches(o.detection, label)]
+    assert observations, f"{name} {label['id']}: not detected (see test_labelled_cube_is_detected)"
+    observation = observations[0]
+    assert observation.pose is not None, f"{name} {label['id']}: no pose: {observation.error}"
+    T = observation.pose.T_camera_object
+    expected_depth = BOARD_DISTANCE_M - side
+    assert abs(observation.pose.depth_m - expected_depth) <= DEPTH_TOLERANCE_FRACTION * expected_depth, \
+        f"{name} {label['id']}: depth {observation.pose.depth_m:.3f} m, expected {expected_depth:.3f} m"
+    tilt = np.degrees(np.arccos(np.clip(T[:3, 2] @ TABLE_PLANE.normal, -1.0, 1.0)))
+    assert tilt <= TILT_TOLERANCE_DEG, f"{name} {label['id']}: top face tilted {tilt:.1f} deg from the board"
+    model = models.model_for('square', side, side)
+    projected = CAMERA.project(model.vertices @ T[:3, :3].T + T[:3, 3])
+    corners = np.asarray(label['corners'], float)
+    errors = [min(_distance(p, c) for c in corners) for p in projected]
+    assert max(errors) <= CORNER_TOLERANCE_PX, \
+        f"{name} {label['id']}: projected corners {np.round(projected, 1).tolist()} off the labelled ones by " \
+        f"{np.round(errors, 1).tolist()} px"
+
+
+def _false_detections(name):
+    entry = LABELS['images'][name]
+    false = []
+    for observation in _observations(name, 'large'):
+        if observation.pose is None:
+            continue
+        centre = observation.detection.centroid_px
+        if any(_distance(centre, label['centre']) <= label['side_px'] / 2 for label in entry['cubes']):
+            continue
+        if any(_distance(centre, ignore['centre']) <= ignore['radius_px'] for ignore in entry.get('ignore') or ()):
+            continue
+        false.append(observation.detection)
+    return false
+
+
+@pytest.mark.parametrize('name', [pytest.param(name, id=name, marks=(
+    pytest.mark.xfail(strict=True, reason=KNOWN_FALSE_DETECTIONS[name]) if name in KNOWN_FALSE_DETECTIONS else ()))
+    for name in LABELS['images']])
+def test_no_false_square_detections(name):
+    """Posed square detections (any colour) that are on no labelled cube and no ignore entry: none."""
+    false = _false_detections(name)
+    assert not false, f'{name}: {len(false)} false square detections: ' + '; '.join(
+        f'{d.colour} {d.shape} at ({d.centroid_px[0]:.0f}, {d.centroid_px[1]:.0f}), area {d.area_px:.0f} px^2'
+        for d in false)

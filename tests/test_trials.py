@@ -1,10 +1,8 @@
 """Batch-trials runner (baxter_pnp.bench: trials, trial_scenes, ground_truth, soak): random scenes,
-ground-truth scoring, summary, the soak's pure parts; one real trial and (when the application supports
-``--cycles``) a two-cycle soak."""
+ground-truth scoring, summary, the soak's pure parts; one real trial and a two-cycle soak."""
 import json
 import math
 import os
-import subprocess
 
 import cv2
 import numpy as np
@@ -15,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from baxter_pnp.bench import ground_truth, soak, trial_scenes, trials
 from baxter_pnp.models import model_for
 from baxter_pnp.runtime import PACKAGE_ROOT
-from baxter_pnp.sim.launcher import RosMaster, free_port, project_python, run_script
+from baxter_pnp.sim.launcher import RosMaster, free_port, run_script
 from baxter_pnp.sim.scene import Scene, SceneError, Table
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
@@ -157,9 +155,12 @@ def test_one_real_pbvs_trial_is_a_verified_pick(ros_node, ros_master, tmp_path):
     scene = trial_scenes.random_scene(np.random.default_rng(7), 'down')
     row = trials.run_trial(ros_master, scene, 'pbvs', 'down', 0.35, str(tmp_path / 'trial'), timeout=150.0, seed=7)
     assert (row['returncode'], row['app_success'], row['failure_reason']) == (0, True, None), row
-    assert row['lifted'] and row['rise_mm'] > 50.0 and row['verified']
-    assert row['centring_mm'] < 5.0, row
-    assert 0.0 < row['time_s'] < 30.0 and row['steps'] > 0
+    # the app lifts 10 cm (lift_height); 5 mm of margin for the block settling in the fingers
+    assert row['lifted'] and row['verified'] and row['rise_mm'] == pytest.approx(100.0, abs=5.0), row
+    # README: centring 0.2-0.3 mm median, p90 0.5 mm over the trial batches; 2 mm leaves room for noise
+    assert row['centring_mm'] < 2.0, row
+    # README: PBVS time to grasp 6.8 s median, 9.9 s p90 (robot time); target <= 15 s
+    assert 0.0 < row['time_s'] < 15.0 and row['steps'] > 0, row
     assert (tmp_path / 'trial' / 'pick.log').exists() and (tmp_path / 'trial' / 'errors.png').exists()
 
 
@@ -333,16 +334,10 @@ def test_soak_options():
             trials.parse_args(bad)
 
 
-def app_has_cycles():
-    """True if pick_square.py accepts --cycles (the soak's contract with the application)."""
-    help_text = subprocess.run([project_python(), os.path.join(PACKAGE_ROOT, 'scripts', 'pick_square.py'), '--help'],
-                               capture_output=True, text=True, timeout=120).stdout
-    return '--cycles' in help_text
-
-
 def test_a_two_cycle_soak_in_one_session(ros_node, ros_master, tmp_path):
-    if not app_has_cycles():
-        pytest.skip('pick_square.py does not accept --cycles yet (the soak needs it)')
+    """``pick_square.py --cycles 2`` through the soak runner: both cycles verified by the ground truth, exit status 0
+    (every cycle succeeded; ``tests/test_cycles.py`` has a failed cycle and exit status 1). An application that
+    does not run (e.g. rejects ``--cycles``) fails here: it is not skipped."""
     rows, summary = soak.run_soak(ros_master, 2, 'pbvs', 'down', soak.SOAK_PLACE_XY, str(tmp_path), seed=0,
                                   timeout_per_cycle=150.0)
     assert (summary['returncode'], summary['timed_out']) == (0, False), summary

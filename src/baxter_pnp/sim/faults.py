@@ -3,9 +3,10 @@
 A scene's ``faults:`` key (see docs/fake_baxter.md "Fault injection") becomes a ``Faults``
 (``Faults.from_dict``, via ``sim.scene``; ``params.ParameterError`` naming the key). Times are simulated
 seconds since the fake Baxter started, lengths metres in ``base``, probabilities in 0..1. The world
-(``sim.world``) acts out the physical faults (nudge, occluder, gripper misses); the node (``sim.node``) the
-camera, IK, command-delay and e-stop faults. Random faults take a uniform draw in [0, 1) per decision from a
-generator seeded with the fake's ``--seed``, so a run is reproducible; the helpers here only decide.
+(``sim.world``) acts out the physical faults (nudge, occluder, gripper misses and slips); the node
+(``sim.node``) the camera, IK, command-delay and e-stop faults. Random faults take a uniform draw in [0, 1)
+per decision from a generator seeded with the fake's ``--seed``, so a run is reproducible; the helpers here
+only decide.
 """
 import collections
 import math
@@ -145,15 +146,23 @@ class IKFaults(Parameters):
 
 @dataclass(frozen=True)
 class GripperFaults(Parameters):
-    """The first ``miss_first`` closes of each gripper find nothing: the fingers pass through the blocks."""
+    """The first ``miss_first`` closes of each gripper find nothing: the fingers pass through the blocks. The
+    ``slip_first`` closes after those grip, but the block slips out of the fingers when they rise while the
+    gripper keeps reporting ``gripping`` (it holds the opening it closed to until it next opens)."""
     miss_first: int = 0
+    slip_first: int = 0
 
     def validate(self):
         self.require(self.miss_first >= 0, 'miss_first', 'must be a non-negative integer')
+        self.require(self.slip_first >= 0, 'slip_first', 'must be a non-negative integer')
 
     def misses(self, attempt):
         """True if close attempt ``attempt`` (0 = the first) must miss."""
         return attempt < self.miss_first
+
+    def slips(self, attempt):
+        """True if close attempt ``attempt`` (0 = the first) must let the block slip (after the misses)."""
+        return self.miss_first <= attempt < self.miss_first + self.slip_first
 
 
 @dataclass(frozen=True)

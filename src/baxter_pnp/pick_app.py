@@ -74,9 +74,9 @@ class PickApplication:
                 session.open_gripper()
                 self.motion.move_to_joints(session.start_pose(self.config.start_pose),
                                            'start pose %s' % self.config.start_pose)
-                session.start_clock()
                 if cycle > 1:
                     self.wait_for_next_block()
+                session.start_clock()           # a cycle's times count from its block being there
                 session.run_resuming(self.pick, on_resume=self.forget_block)
                 if self.config.place_xy is not None:
                     self.place()

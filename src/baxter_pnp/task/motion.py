@@ -118,14 +118,21 @@ class Motion:
 
     def retreat(self, reason):
         """After a failure: open the gripper unless it holds something, stop velocity control and move up
-        ``RETREAT_HEIGHT`` if that is safe; not after an e-stop or a disable (nothing more is commanded). Never
-        raises: a retreat that fails is logged."""
+        ``RETREAT_HEIGHT`` if that is safe. After an e-stop or a disable nothing at all is commanded; without
+        the IK service the arm stays where it is (no wait for the service). Never raises: a retreat that fails
+        is logged."""
         session = self.session
+        if reason in ('robot_stopped', 'robot_disabled'):
+            rospy.loginfo('%s: the robot is stopped: nothing more is commanded' % self.log_name)
+            return
         try:
             if session.gripper is not None and not session.gripper.gripping():
                 session.gripper.open(block=False)
-            if session.limb is not None and reason not in ('robot_stopped', 'robot_disabled'):
+            if session.limb is not None:
                 session.limb.exit_control_mode()
+                if reason == 'service_unavailable':
+                    rospy.logwarn('%s: no IK service: the arm stays where it is' % self.log_name)
+                    return
                 self.move_up(RETREAT_HEIGHT, 'retreat', max_intermediate=1)
         except (TaskFailure, robot.RobotError, ValueError) as error:     # UnsafeCommand is a ValueError
             rospy.logwarn('%s: could not retreat after the failure: %s' % (self.log_name, error))

@@ -524,12 +524,12 @@ class FakeBaxterNode:
     # ------------------------------------------------------------------ cameras
     def _open_camera(self, request):
         settings = request.settings
-        err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps,
-                                        self.world.time)
+        now = self.world.time               # one instant for the frame grid and the fault clock
+        err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps, now)
         if err:
             rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
-            self.world.start_fault_clock()
+            self.world.start_fault_clock(now)
         return srv.OpenCameraResponse(err)
 
     def _image_publishers(self, name):

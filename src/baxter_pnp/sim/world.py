@@ -153,10 +153,11 @@ class SimWorld(PyBulletClientOwner):
         """Simulated time ``t`` (default now), in s, on the faults' clock (``scene.faults.time_origin``)."""
         return (self.time if t is None else t) - self.fault_time_origin
 
-    def start_fault_clock(self):
-        """With ``time_origin: camera_open``: fault times count from now (first call only)."""
+    def start_fault_clock(self, now=None):
+        """With ``time_origin: camera_open``: fault times count from ``now`` (s, default the world's time;
+        first call only)."""
         if math.isinf(self.fault_time_origin):
-            self.fault_time_origin = self.time
+            self.fault_time_origin = self.time if now is None else now
 
     def step(self, n=1):
         """Advance ``n`` physics steps of ``time_step`` seconds (arm set-points, motors, contacts)."""

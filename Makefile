@@ -44,8 +44,10 @@ $(GENERATED): $(wildcard msg/*.msg srv/*.srv) tools/gen_msgs.py $(STAMP_APT)
 $(PTH): $(STAMP_VENV)
 	@echo "$(ROOT)/src" > $@
 
+# Two workers (one per core), a test file per worker at a time: each worker has its own rosmaster and fakes.
+TEST_WORKERS ?= 2
 test: setup
-	cd $(ROOT) && $(PY) -m pytest -q tests
+	cd $(ROOT) && $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile tests
 
 # The whole system headless: rosmaster + fake Baxter + pick_square.py (pick, then place); outputs in out/demo.
 demo: setup

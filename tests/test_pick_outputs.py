@@ -61,6 +61,15 @@ def stamp_s(header):
     return header.stamp.to_sec()
 
 
+def from_others(callback):
+    """``callback`` for messages of other nodes only: what this test process published itself (a latched
+    output of an earlier test's in-process task, say) is not the app's."""
+    def filtered(message):
+        if message._connection_header.get('callerid') != rospy.get_name():
+            callback(message)
+    return filtered
+
+
 class GraphWatcher:
     """What a separate node sees of a pick: the app's outputs and the fake's ground truth, each with its header
     stamp (simulated s). Subscribes at construction (before the app starts); ``close()`` unsubscribes. ``with_tf``:
@@ -81,13 +90,14 @@ class GraphWatcher:
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(3600.0)) if with_tf else None
         self._subscribers = [tf2_ros.TransformListener(self.tf_buffer)] if with_tf else []
         self._subscribers += [
-            rospy.Subscriber('/baxter_pnp/debug_image', Image, self._on_debug_image, queue_size=None),
-            rospy.Subscriber('/baxter_pnp/target_pose', PoseStamped, self._on_target_pose, queue_size=None),
-            rospy.Subscriber('/robot/limb/left/set_speed_ratio', Float64, self._on_speed_ratio),
+            rospy.Subscriber('/baxter_pnp/debug_image', Image, from_others(self._on_debug_image), queue_size=None),
+            rospy.Subscriber('/baxter_pnp/target_pose', PoseStamped, from_others(self._on_target_pose),
+                             queue_size=None),
+            rospy.Subscriber('/robot/limb/left/set_speed_ratio', Float64, from_others(self._on_speed_ratio)),
             rospy.Subscriber('/fake_baxter/object_poses', PoseArray, self._on_object_poses, queue_size=None),
             rospy.Subscriber('/robot/limb/left/endpoint_state', msg.EndpointState, self._on_endpoint, queue_size=None),
             rospy.Subscriber('/robot/state', msg.AssemblyState, self._on_robot_state),
-            rospy.Subscriber('/robot/limb/left/joint_command', msg.JointCommand, self._on_joint_command)]
+            rospy.Subscriber('/robot/limb/left/joint_command', msg.JointCommand, from_others(self._on_joint_command))]
 
     def _on_debug_image(self, image):
         with self._lock:
@@ -98,7 +108,7 @@ class GraphWatcher:
                 # Subscribe to the result once the app has looked, i.e. seconds after it created its result
                 # publisher: rospy marks a publisher latched only after advertising it, and a subscriber that
                 # connects in between is told 'latching: 0' (a race of rospy's, not the app's).
-                self._subscribers.append(rospy.Subscriber('/baxter_pnp/result', String, self._on_result))
+                self._subscribers.append(rospy.Subscriber('/baxter_pnp/result', String, from_others(self._on_result)))
 
     def _on_target_pose(self, pose):
         with self._lock:

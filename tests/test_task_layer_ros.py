@@ -31,6 +31,7 @@ def hover_over_block(config, session_config):
         observations, T_base_camera, rules, (camera.width, camera.height)))
     assert look.target is not None, 'no block in view of the start pose'
     motion.move_to_pose(pick.hover_pose(look.T_base_block, config, look.T_base_gripper), 'hover over the block')
+    rospy.sleep(0.5)        # simulated s: "arrived" allows 0.5 deg a joint (mm at the tip); judge where the arm settles
     T_reached = session.limb.endpoint_pose()
     session.camera.close()
     return look, T_reached

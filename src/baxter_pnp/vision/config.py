@@ -84,7 +84,7 @@ class ChromaConfig(Parameters):
     white_balance: bool = True
     max_gain: float = 2.0
     min_fill: float = 0.7
-    classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(140.0, 35.0)})
+    classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(150.0, 40.0, 19.0)})
 
     def validate(self):
         self.require(self.max_gain >= 1.0, 'max_gain', 'must be >= 1')

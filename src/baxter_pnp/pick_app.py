@@ -324,7 +324,8 @@ class PickApplication:
                           % (1000 * offset))
         else:
             rospy.logwarn('pick: the look after lifting is inconclusive (block estimated %.1f mm from its expected '
-                          'place in the hand); gripper reports gripping' % (1000 * offset))
+                          'place in the hand, at %s mm in base); gripper reports gripping'
+                          % (1000 * offset, np.round(1000 * look.T_base_block[:3, 3], 1).tolist()))
         return True
 
     def place(self):

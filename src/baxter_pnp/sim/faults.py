@@ -147,8 +147,8 @@ class IKFaults(Parameters):
 @dataclass(frozen=True)
 class GripperFaults(Parameters):
     """The first ``miss_first`` closes of each gripper find nothing: the fingers pass through the blocks. The
-    ``slip_first`` closes after those grip, but the block slips out of the fingers when they rise while the
-    gripper keeps reporting ``gripping`` (it holds the opening it closed to until it next opens)."""
+    ``slip_first`` closes after those grip, but then let go of the block (it stays on the table when they rise)
+    while the gripper keeps reporting ``gripping`` (it holds the opening it closed to until it next opens)."""
     miss_first: int = 0
     slip_first: int = 0
 

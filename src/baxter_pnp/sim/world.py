@@ -16,8 +16,8 @@ to the gripper).
 Faults (``scene.faults``, ``sim.faults``) acted out here: the occluder plate (visual only), the nudge
 (a kinematic slide of a block), grippers whose first closes miss (the fingers pass through the
 blocks: finger-block collisions are off until the reopened fingers are clear of every block) and closes
-that slip (frictionless finger pads until the gripper opens; it holds the opening it gripped at and keeps
-reporting ``gripping``).
+that slip (once the fingers grip, they let go of the block the same way: it stays on the table when they
+rise, while the gripper holds the opening it gripped at and keeps reporting ``gripping`` until it opens).
 
 ``scene.respawn`` (soak tests) is acted out here too: a block that was lifted and has been put down and
 let go is moved to the next of its respawn poses (``respawns`` counts the moves).
@@ -437,8 +437,9 @@ class _Gripper:
     """One electric gripper: two prismatic fingers, each a force- and speed-limited position motor, geared together.
 
     Close attempts (a closing command after a non-closing one) are counted; those that
-    ``scene.faults.gripper`` says must miss turn the finger-block collisions off; those that must slip make
-    the finger pads frictionless and, once gripping, hold the fingers' opening and the ``gripping`` flag
+    ``scene.faults.gripper`` says must miss turn the finger-block collisions off; those that must slip turn
+    them off once the fingers grip (the block, no longer squeezed, stays where it lies: frictionless pads
+    instead squirt it out sideways now and then) and hold the fingers' opening and the ``gripping`` flag
     until the next opening command, whether or not the block is still between the fingers.
     """
 
@@ -456,9 +457,7 @@ class _Gripper:
         self.faults = world.scene.faults.gripper
         self.close_attempts = 0
         self.phantom = False                    # the fingers pass through the blocks (a close that must miss)
-        self.slipping = False                   # this close slips: frictionless pads, gripping flag held
-        self.pad_friction = {link: p.getDynamicsInfo(world._robot, link, physicsClientId=world._client)[1]
-                             for link in self._finger_links()}
+        self.slipping = False                   # this close slips: it lets go once gripping, gripping flag held
         self.gripping = False                   # latched: set when the fingers stop on a block, kept while they hold it
         self.speed = 0.0                        # m/s, low-passed opening speed of the fingers
         for index, sign in zip(self.indices, self.signs):
@@ -477,10 +476,10 @@ class _Gripper:
         if self.closing and not was_closing:
             if self.faults.misses(self.close_attempts):
                 self._collide_with_blocks(False)
-            self._slip(self.faults.slips(self.close_attempts))
+            self.slipping = self.faults.slips(self.close_attempts)
             self.close_attempts += 1
         elif not self.closing:
-            self._slip(False)
+            self.slipping = False
         self.gripping = self.gripping and self.closing
         self.command_time = world.time
         force = float(np.clip(force_percent, 0.0, 100.0)) / 100.0 * GRIPPER_MAX_FORCE
@@ -498,15 +497,7 @@ class _Gripper:
             self._collide_with_blocks(True)
         if self.slipping and self.gripping and self.target < self._opening()[0].mean() - 1e-4:
             self._hold_opening()
-
-    def _slip(self, enable):
-        """Start (frictionless pads) or end (their friction back) a close that lets the block slip."""
-        world = self._world
-        if enable != self.slipping:
-            for link, friction in self.pad_friction.items():
-                p.changeDynamics(world._robot, link, lateralFriction=0.0 if enable else friction,
-                                 physicsClientId=world._client)
-        self.slipping = enable
+            self._collide_with_blocks(False)
 
     def _hold_opening(self):
         """A slipping grip: the drive holds the opening it gripped at, block or no block."""

@@ -1,9 +1,11 @@
 """CameraModel: projection/undistortion, YAML and CameraInfo round trips, scaling, rendering maps."""
+import os
+
 import numpy as np
 import pytest
 import yaml
 
-from baxter_pnp.camera import CameraModel, load_default_camera
+from baxter_pnp.camera import CameraModel, SensorWindow, load_default_camera
 
 
 @pytest.fixture(scope='module')
@@ -75,6 +77,50 @@ def test_camera_info_region_of_interest_and_binning_as_image_geometry(camera):
     assert (binned.cx, binned.cy, binned.fx) == pytest.approx(((camera.cx - 320) / 2, (camera.cy - 200) / 2, camera.fx / 2))
     info.header.frame_id = '/left_hand_camera'
     assert CameraModel.from_camera_info(info).frame_id == 'left_hand_camera'
+
+
+REAL_DATA = os.environ.get('BAXTER_PNP_REAL_DATA',
+                           os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'real'))
+REAL_CAMERA_INFO = os.path.join(REAL_DATA, 'baxter_hand_a', 'camera_info_as_published.yaml')
+
+
+@pytest.mark.skipif(not os.path.exists(REAL_CAMERA_INFO), reason='real data (../shared/real) absent')
+def test_a_sensor_window_publishes_what_a_real_hand_camera_publishes():
+    """The real robot's 640x400 CameraInfo, rebuilt from its sensor K and D and the centred 640x400 window of the
+    1280x800 sensor: K, D, P, roi, binning, size and frame_id as published; ``windowed`` = the message's model."""
+    with open(REAL_CAMERA_INFO) as f:
+        real = yaml.safe_load(f)
+    sensor = CameraModel(1280, 800, real['K'], real['D'], frame_id=real['header']['frame_id'])
+    window = SensorWindow.centred(1280, 800, 640, 400)
+    fields = sensor.camera_info_fields(window)
+    for key in ('K', 'D', 'P', 'R'):
+        np.testing.assert_allclose(fields[key], real[key], atol=1e-9, err_msg=key)
+    for key in ('width', 'height', 'binning_x', 'binning_y', 'header'):
+        assert fields[key] == real[key] or (key == 'header' and fields[key]['frame_id'] == real[key]['frame_id'])
+    assert fields['roi'] == real['roi']
+    image = CameraModel.from_yaml(REAL_CAMERA_INFO)
+    windowed = sensor.windowed(window)
+    np.testing.assert_allclose(windowed.K, image.K, atol=1e-9)
+    assert (windowed.width, windowed.height, windowed.frame_id) == (640, 400, 'left_hand_camera')
+    assert (image.cx, image.cy) == pytest.approx((331.31, 205.82), abs=0.01)     # P's, not K's (651, 406)
+
+
+def test_sensor_windows_centred_binned_and_checked(camera):
+    """A centred window of each size, binned 2x2 at half resolution; windows outside the sensor are refused;
+    the camera of a centred crop keeps the rays (same pixel pitch, principal point shifted)."""
+    assert SensorWindow.centred(1280, 800, 320, 200) == SensorWindow(480, 300, 320, 200, 1)
+    assert SensorWindow.centred(1280, 800, 640, 400, binning=2) == SensorWindow(0, 0, 1280, 800, 2)
+    assert SensorWindow(0, 0, 1280, 800, 2).image_size() == (640, 400)
+    for bad in (lambda: SensorWindow.centred(1280, 800, 960, 600, binning=2),
+                lambda: camera.camera_info_fields(SensorWindow(100, 0, 640, 480))):
+        with pytest.raises(ValueError, match='not inside'):
+            bad()
+    crop = camera.windowed(SensorWindow.centred(640, 480, 640, 400))
+    np.testing.assert_allclose(crop.K, camera.scaled(640, 400).K)        # same width: the scaled model is the crop
+    binned = camera.windowed(SensorWindow(0, 0, 640, 480, 2))
+    assert (binned.width, binned.height, binned.fx, binned.cx) == (320, 240, camera.fx / 2, camera.cx / 2)
+    info = camera.to_camera_info(window=SensorWindow(0, 40, 640, 400))
+    assert (info.roi.y_offset, info.height, info.P[6]) == (40, 400, pytest.approx(camera.cy - 40))
 
 
 @pytest.mark.parametrize('field, value, message', [

@@ -161,10 +161,19 @@ def test_camera_opened_at_boot_publishes_at_its_fps_and_the_fake_runs_at_its_mea
     assert published_rate_hz(received) == pytest.approx(20.0, rel=0.10)
     assert rate_hz([m.header.stamp.to_sec() for m in received]) == pytest.approx(20.0, rel=0.10)
     assert len(received) >= 10
-    assert (image.width, image.height, image.encoding, image.header.frame_id) == (640, 400, 'rgb8', 'left_hand_camera')
+    # as a real Baxter's hand camera at 640x400: frame_id with a leading /, the full-sensor K (1280x800), the window
+    # as roi, P for the delivered image; read as image_geometry reads it: the thesis calibration cropped
+    assert (image.width, image.height, image.encoding, image.header.frame_id) == (640, 400, 'rgb8', '/left_hand_camera')
     assert msg_to_bgr(image).shape == (400, 640, 3)
-    published = CameraModel.from_camera_info(info)
+    assert info.header.frame_id == '/left_hand_camera' and (info.width, info.height) == (640, 400)
+    assert (info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height) == (320, 200, 640, 400)
+    assert info.binning_x in (0, 1) and info.binning_y in (0, 1)
     expected = load_default_camera().scaled(640, 400)
+    np.testing.assert_allclose([info.K[2], info.K[5]], [expected.cx + 320, expected.cy + 200])
+    np.testing.assert_allclose([info.P[0], info.P[2], info.P[5], info.P[6]],
+                               [expected.fx, expected.cx, expected.fy, expected.cy])
+    published = CameraModel.from_camera_info(info)
+    assert (published.width, published.height, published.frame_id) == (640, 400, 'left_hand_camera')
     np.testing.assert_allclose(published.K, expected.K)
     np.testing.assert_allclose(published.D, expected.D)
 

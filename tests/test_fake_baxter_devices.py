@@ -22,7 +22,7 @@ from baxter_pnp.models import model_for
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot.sdk import GRIPPER_PARAMETERS
 from baxter_pnp.ros_image import msg_to_bgr
-from baxter_pnp.sim.cameras import camera_settings_problem, parse_camera_option
+from baxter_pnp.sim.cameras import RESOLUTION_HALF_CONTROL, camera_settings_problem, parse_camera_option
 from baxter_pnp.sim.world import FINGER_TRAVEL, GRIPPER_MAX_SPEED
 from baxter_pnp.transforms import invert, make_transform
 import fake_baxter_client
@@ -45,6 +45,8 @@ def test_camera_settings_and_option():
     assert camera_settings_problem('left_hand_camera', 800, 800, 30.0)[0] == errno.EINVAL
     assert camera_settings_problem('left_hand_camera', 640, 400, 0.0)[0] == errno.EINVAL
     assert camera_settings_problem('torso_camera', 640, 400, 20.0)[0] == errno.ENODEV
+    assert camera_settings_problem('left_hand_camera', 640, 400, 20.0, half_resolution=True) is None
+    assert camera_settings_problem('left_hand_camera', 960, 600, 20.0, half_resolution=True)[0] == errno.EINVAL
     assert parse_camera_option('head_camera:320x200') == ('head_camera', 320, 200, 20.0)
     assert parse_camera_option('left_hand_camera:640x400@12.5') == ('left_hand_camera', 640, 400, 12.5)
     for bad in ('left_hand_camera', 'left_hand_camera:640x480@20', 'left_hand_camera:640x400@0'):
@@ -81,13 +83,18 @@ def test_every_camera_mode_shows_the_block_where_the_model_projects_it(robot, ki
     T_base_camera = kin.fk(robot.angles(), 'left_hand_camera')
     T_camera_block = invert(T_base_camera) @ robot.block_pose(0)
     try:
-        for width, height in MODES:
+        for width, height, binning in [(w, h, 1) for w, h in MODES] + [(640, 400, 2), (320, 200, 2)]:
             opened_at = rospy.get_time()
-            settings = msg.CameraSettings(width=width, height=height, fps=10.0)
+            controls = [msg.CameraControl(id=RESOLUTION_HALF_CONTROL, value=1)] if binning == 2 else []
+            settings = msg.CameraSettings(width=width, height=height, fps=10.0, controls=controls)
             assert open_camera('left_hand_camera', settings).err == 0
             image = images.wait_for(lambda m: m.width == width and m.header.stamp.to_sec() >= opened_at, 20.0)
             info = infos.wait_for(lambda m: m.width == width and m.header.stamp == image.header.stamp, 5.0)
             assert (image.height, image.encoding, info.height) == (height, 'bgra8', height)
+            # the mode's centred window of the 1280x800 sensor as roi, binned 2x2 at half resolution
+            roi = (info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height)
+            assert roi == ((1280 - binning * width) // 2, (800 - binning * height) // 2, binning * width,
+                           binning * height) and info.binning_x == info.binning_y == binning, (width, roi)
             camera = CameraModel.from_camera_info(info)
             seen, seen_area = _centroid(green_mask(msg_to_bgr(image)))
             expected, expected_area = _centroid(_block_silhouette(camera, T_camera_block, block))

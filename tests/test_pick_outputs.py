@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Image
 from std_msgs.msg import Float64, String
 
-from baxter_pnp.camera import DEFAULT_CAMERA_YAML
+from baxter_pnp.camera import DEFAULT_CAMERA_YAML, SensorWindow, load_default_camera
 from baxter_pnp.msgs import msg
 from baxter_pnp.pick_app import DEFAULT_CONFIG
 from baxter_pnp.ros_image import msg_to_bgr
@@ -357,16 +357,20 @@ def check_target_poses(watcher, views, result):
 
 
 def test_bad_parameters_exit_2_before_the_robot_is_touched(ros_master, ros_node, fake_baxter, tmp_path):
-    """A bad command-line value, a bad ``~param`` and a wrong ``--camera-calibration`` file: exit status 2, a log
+    """A bad command-line value, a bad ``~param``, and ``--camera-calibration`` files that are not a camera or are
+    calibrated at a size smaller than the camera mode: exit status 2, a log
     line naming the problem, no result, and the robot untouched (never enabled, no joint command, the arm still).
     (README, "Failure modes": "a bad parameter exits 2 before anything moves".)"""
     fake = fake_baxter('--real-time-factor', '0')        # boots disabled: enabling it would be the app's doing
     watcher = GraphWatcher()
     try:
         T_base_gripper_before = gripper_pose()
+        small = tmp_path / 'camera_320x200.yaml'
+        load_default_camera().windowed(SensorWindow.centred(640, 480, 320, 200)).to_yaml(str(small))
         cases = [(['--colour', 'purple'], {}, 'purple'),
                  ([], {'speed_ratio': 1.5}, 'speed_ratio'),
-                 (['--camera-calibration', DEFAULT_SCENE_YAML], {}, 'image_width')]   # a scene, not a camera
+                 (['--camera-calibration', DEFAULT_SCENE_YAML], {}, 'image_width'),   # a scene, not a camera
+                 (['--camera-calibration', small], {}, 'smaller than the camera mode 640x400')]
         for args, private, named in cases:
             with private_parameters(private):
                 run, result = run_pick(ros_master, tmp_path, *args)

@@ -5,6 +5,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp import pick
+from baxter_pnp.camera import SensorWindow, load_default_camera
 from baxter_pnp.params import ParameterError
 from baxter_pnp.perception import BlockObservation
 from baxter_pnp.pose import PoseEstimate
@@ -100,3 +101,27 @@ def test_one_yaml_splits_into_the_task_and_the_session_with_precedence(tmp_path)
                         ({'stepfraction': 0.1}, 'stepfraction')):
         with pytest.raises(ParameterError, match=key):
             load_configs(pick.PickConfig, None, values)
+
+
+def test_a_camera_calibration_is_the_image_model_or_its_centred_window(tmp_path):
+    """``camera_calibration`` at the mode's size is used as it is; at a larger size its centred window (a hand
+    camera's modes are windows of the sensor: 640x480 -> 640x400 drops 40 rows top and bottom); smaller, or not a
+    camera, is a bad parameter before anything connects."""
+    thesis = load_default_camera()                              # 640x480
+    path = tmp_path / 'camera.yaml'
+    thesis.to_yaml(str(path))
+    at_640x400 = SessionConfig.from_dict({'camera_calibration': str(path), 'resolution': [640, 400]})
+    camera = at_640x400.calibrated_camera()
+    assert (camera.width, camera.height) == (640, 400)
+    np.testing.assert_allclose(camera.K, thesis.K - [[0, 0, 0], [0, 0, 40], [0, 0, 0]])
+    np.testing.assert_array_equal(camera.D, thesis.D)
+    own = tmp_path / 'own.yaml'
+    camera.to_yaml(str(own))
+    np.testing.assert_array_equal(SessionConfig.from_dict({'camera_calibration': str(own)}).calibrated_camera().K,
+                                  camera.K)
+    small = tmp_path / 'small.yaml'
+    thesis.windowed(SensorWindow.centred(640, 480, 320, 200)).to_yaml(str(small))
+    with pytest.raises(ParameterError, match='camera_calibration.*smaller than the camera mode 640x400'):
+        SessionConfig.from_dict({'camera_calibration': str(small), 'resolution': [640, 400]})
+    with pytest.raises(ParameterError, match='camera_calibration.*not a readable'):
+        SessionConfig.from_dict({'camera_calibration': str(tmp_path / 'missing.yaml')})

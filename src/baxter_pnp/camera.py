@@ -210,16 +210,81 @@ class CameraModel:
         except ValueError as error:
             raise ValueError(f'CameraInfo: {error}') from None
 
-    def to_camera_info(self, header=None):
-        """``sensor_msgs/CameraInfo`` of this camera; ``header`` defaults to one with ``frame_id`` only."""
-        from sensor_msgs.msg import CameraInfo
-        from std_msgs.msg import Header
+    def camera_info_fields(self, window=None, frame_id=None):
+        """This camera's ``CameraInfo`` as a ``rostopic echo`` mapping (``header`` holds ``frame_id`` only).
+
+        Without ``window`` it describes this image (no ROI, no binning, ``P = [K | 0]``). With a
+        ``SensorWindow`` this is the full sensor and the message describes the window it delivers, as a Baxter
+        hand camera does: ``K`` and ``D`` of the sensor, ``roi`` the window, ``binning`` its binning,
+        ``width`` x ``height`` the delivered image's size, ``P`` the delivered image's own camera.
+        """
         d = self.to_dict()
+        fields = {'header': {'frame_id': self.frame_id if frame_id is None else frame_id},
+                  'height': self.height, 'width': self.width, 'distortion_model': DISTORTION_MODEL,
+                  'D': d['distortion_coefficients']['data'], 'K': d['camera_matrix']['data'],
+                  'R': d['rectification_matrix']['data'], 'P': d['projection_matrix']['data'],
+                  'binning_x': 0, 'binning_y': 0,
+                  'roi': {'x_offset': 0, 'y_offset': 0, 'height': 0, 'width': 0, 'do_rectify': False}}
+        if window is not None:
+            window.check_inside(self.width, self.height)
+            image_width, image_height = window.image_size()
+            P = np.hstack([self.K, np.zeros((3, 1))])
+            P[:2, 2] -= (window.x_offset, window.y_offset)
+            P[:2] /= window.binning
+            fields.update(width=image_width, height=image_height, P=[float(v) for v in P.ravel()],
+                          binning_x=window.binning, binning_y=window.binning,
+                          roi={'x_offset': window.x_offset, 'y_offset': window.y_offset, 'height': window.height,
+                               'width': window.width, 'do_rectify': False})
+        return fields
+
+    def windowed(self, window):
+        """The delivered image's camera when this full-sensor camera delivers ``window`` (a ``SensorWindow``),
+        by ``image_geometry``'s arithmetic (``from_camera_info`` of ``camera_info_fields(window)``)."""
+        return CameraModel.from_camera_info(_camera_info_from_dict(self.camera_info_fields(window)))
+
+    def to_camera_info(self, header=None, window=None):
+        """``sensor_msgs/CameraInfo`` of ``camera_info_fields(window)``; ``header`` defaults to one with
+        ``frame_id`` only."""
+        from sensor_msgs.msg import CameraInfo, RegionOfInterest
+        from std_msgs.msg import Header
+        fields = self.camera_info_fields(window)
         return CameraInfo(
-            header=header if header is not None else Header(frame_id=self.frame_id),
-            width=self.width, height=self.height, distortion_model=DISTORTION_MODEL,
-            D=d['distortion_coefficients']['data'], K=d['camera_matrix']['data'],
-            R=d['rectification_matrix']['data'], P=d['projection_matrix']['data'])
+            header=header if header is not None else Header(frame_id=fields['header']['frame_id']),
+            width=fields['width'], height=fields['height'], distortion_model=fields['distortion_model'],
+            D=fields['D'], K=fields['K'], R=fields['R'], P=fields['P'], binning_x=fields['binning_x'],
+            binning_y=fields['binning_y'], roi=RegionOfInterest(**fields['roi']))
+
+
+@dataclass(frozen=True)
+class SensorWindow:
+    """The part of a sensor an image shows: ``x_offset``, ``y_offset``, ``width``, ``height`` in full-resolution
+    sensor pixels (a ``CameraInfo``'s ``roi``) read out with ``binning`` x ``binning`` binning."""
+    x_offset: int
+    y_offset: int
+    width: int
+    height: int
+    binning: int = 1
+
+    @classmethod
+    def centred(cls, sensor_width, sensor_height, image_width, image_height, binning=1):
+        """The centred window of a ``sensor_width`` x ``sensor_height`` sensor that delivers ``image_width`` x
+        ``image_height`` pixels with ``binning``; ValueError if it does not fit."""
+        width, height = image_width * binning, image_height * binning
+        window = cls((sensor_width - width) // 2, (sensor_height - height) // 2, width, height, binning)
+        window.check_inside(sensor_width, sensor_height)
+        return window
+
+    def image_size(self):
+        """(width, height) of the delivered image (px)."""
+        return self.width // self.binning, self.height // self.binning
+
+    def check_inside(self, sensor_width, sensor_height):
+        if self.binning < 1 or self.width % self.binning or self.height % self.binning:
+            raise ValueError(f'window {self}: binning must be >= 1 and divide the window size')
+        if not (0 <= self.x_offset and 0 <= self.y_offset and 0 < self.width and 0 < self.height
+                and self.x_offset + self.width <= sensor_width and self.y_offset + self.height <= sensor_height):
+            raise ValueError(f'window {self.width}x{self.height} at ({self.x_offset}, {self.y_offset}) is not '
+                             f'inside the {sensor_width}x{sensor_height} sensor')
 
 
 def _camera_info_from_dict(d):

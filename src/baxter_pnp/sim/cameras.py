@@ -1,6 +1,14 @@
 """The fake Baxter's camera bank, pure (no ROS): ``/cameras/list|open|close`` semantics (known cameras, the
 SDK's modes, at most two open at once, as the real robot powers), each open camera's published model and frame
-schedule in simulated time, and the ``--camera NAME:WIDTHxHEIGHT@FPS`` option."""
+schedule in simulated time, and the ``--camera NAME:WIDTHxHEIGHT@FPS`` option.
+
+The model of the camera's modes (docs/fake_baxter.md, "Cameras"): a 1280x800 sensor; every mode is the centred
+window of that many sensor pixels (no scaling), so the published ``CameraInfo`` holds the full-sensor ``K``, the
+window as ``roi`` and ``P`` for the delivered image, with ``frame_id`` ``/<camera>`` -- what a real Baxter's
+hand camera publishes at 640x400 (roi offset (320, 200)). The ``RESOLUTION_HALF`` control reads out a window
+twice as large with 2x2 binning (modes up to 640x400). The other modes' windows and the binning follow from the
+640x400 message and the SDK's control list; no message of theirs was at hand.
+"""
 import argparse
 import dataclasses
 import errno
@@ -15,18 +23,38 @@ MAX_OPEN_CAMERAS = 2                            # the real robot powers at most 
 MAX_CAMERA_FPS = 60.0
 
 
+SENSOR_SIZE = (1280, 800)                       # px: the hand cameras' full sensor (the largest mode)
+RESOLUTION_HALF_CONTROL = 109                   # baxter_interface CameraControl.CAMERA_CONTROL_RESOLUTION_HALF
+
+
 @dataclasses.dataclass
 class OpenCamera:
-    """An open camera: its published model (resolution, intrinsics), frame rate and schedule."""
+    """An open camera: its full-sensor model, the window it delivers, the delivered image's model (what the
+    image shows: ``sensor.windowed(window)``), frame rate and schedule."""
+    sensor: camera_module.CameraModel
+    window: camera_module.SensorWindow
     model: camera_module.CameraModel
     fps: float
     schedule: RateSchedule
 
+    def camera_info(self, header):
+        """The ``sensor_msgs/CameraInfo`` a real hand camera publishes for this window, with ``header``."""
+        return self.sensor.to_camera_info(header, self.window)
 
-def camera_model_for(name, width, height):
-    """The published model of camera ``name`` at ``width`` x ``height``: the thesis calibration, scaled."""
-    model = camera_module.load_default_camera().scaled(width, height)
-    return dataclasses.replace(model, name=name, frame_id=name)
+
+def sensor_model(name):
+    """Full-sensor model of camera ``name``: the thesis calibration (a 640x480 image) taken as the centred
+    640x480 window of the 1280x800 sensor, so that 640x400 gives the thesis's numbers cropped."""
+    thesis = camera_module.load_default_camera()
+    K = thesis.K.copy()
+    K[0, 2] += (SENSOR_SIZE[0] - thesis.width) / 2
+    K[1, 2] += (SENSOR_SIZE[1] - thesis.height) / 2
+    return camera_module.CameraModel(*SENSOR_SIZE, K, thesis.D, name=name, frame_id=name)
+
+
+def sensor_window(width, height, half_resolution=False):
+    """The ``SensorWindow`` of mode ``width`` x ``height`` (binned 2x2 with ``half_resolution``)."""
+    return camera_module.SensorWindow.centred(*SENSOR_SIZE, width, height, 2 if half_resolution else 1)
 
 
 class CameraBank:
@@ -39,16 +67,17 @@ class CameraBank:
     def list(self):
         return list(sdk.CAMERA_NAMES)
 
-    def open(self, name, width, height, fps, now):
+    def open(self, name, width, height, fps, now, half_resolution=False):
         """(0, '') when opened (or re-opened with new settings) at simulated time ``now``, else (errno, reason):
-        ENODEV unknown camera, EINVAL bad mode or fps, EBUSY two other cameras already open."""
-        problem = camera_settings_problem(name, width, height, fps)
+        ENODEV unknown camera, EINVAL bad mode, fps or half resolution, EBUSY two other cameras already open."""
+        problem = camera_settings_problem(name, width, height, fps, half_resolution)
         if problem:
             return problem
+        sensor, window = sensor_model(name), sensor_window(width, height, half_resolution)
         with self._lock:
             if name not in self._open and len(self._open) >= MAX_OPEN_CAMERAS:
                 return errno.EBUSY, f'{", ".join(self._open)} already open (at most {MAX_OPEN_CAMERAS} cameras)'
-            self._open[name] = OpenCamera(camera_model_for(name, width, height), float(fps),
+            self._open[name] = OpenCamera(sensor, window, sensor.windowed(window), float(fps),
                                           RateSchedule(fps, start=now))
         return 0, ''
 
@@ -67,8 +96,9 @@ class CameraBank:
             return name in self._open
 
 
-def camera_settings_problem(name, width, height, fps):
-    """None when camera ``name`` can run at ``width`` x ``height`` px and ``fps`` Hz, else (errno, reason)."""
+def camera_settings_problem(name, width, height, fps, half_resolution=False):
+    """None when camera ``name`` can run at ``width`` x ``height`` px and ``fps`` Hz (binned with
+    ``half_resolution``), else (errno, reason)."""
     if name not in sdk.CAMERA_NAMES:
         return errno.ENODEV, f'unknown camera {name!r} (one of {", ".join(sdk.CAMERA_NAMES)})'
     if (width, height) not in sdk.CAMERA_MODES:
@@ -76,6 +106,8 @@ def camera_settings_problem(name, width, height, fps):
                               f'({", ".join("%dx%d" % mode for mode in sdk.CAMERA_MODES)})')
     if not 0 < fps <= MAX_CAMERA_FPS:
         return errno.EINVAL, f'fps must be in (0, {MAX_CAMERA_FPS:g}], got {fps:g}'
+    if half_resolution and (2 * width > SENSOR_SIZE[0] or 2 * height > SENSOR_SIZE[1]):
+        return errno.EINVAL, f'half resolution needs a mode of at most {SENSOR_SIZE[0] // 2}x{SENSOR_SIZE[1] // 2}'
     return None
 
 

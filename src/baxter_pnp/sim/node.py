@@ -47,7 +47,7 @@ from baxter_pnp.kinematics import DEFAULT_URDF, ArmKinematics
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot import sdk
 from baxter_pnp.ros_image import bgr_to_msg
-from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, CameraBank, parse_camera_option
+from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, RESOLUTION_HALF_CONTROL, CameraBank, parse_camera_option
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
@@ -525,7 +525,8 @@ class FakeBaxterNode:
     def _open_camera(self, request):
         settings = request.settings
         now = self.world.time               # one instant for the frame grid and the fault clock
-        err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps, now)
+        half = any(c.id == RESOLUTION_HALF_CONTROL and c.value > 0 for c in settings.controls)
+        err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps, now, half)
         if err:
             rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
@@ -546,11 +547,11 @@ class FakeBaxterNode:
         camera_faults = self.faults.camera
         if not camera_faults.publishes(self.world.fault_time(now), self._frame_fault_rng.random()):
             return
-        header = Header(stamp=rospy.Time.from_sec(now), frame_id=name)
+        header = Header(stamp=rospy.Time.from_sec(now), frame_id='/' + name)     # as the robot: leading /
         image = self.world.render_camera(name, cam.model, self._noise_rng,
                                          gain=camera_faults.gain(self.world.fault_time(now)))
         self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header),
-                                       cam.model.to_camera_info(header)))
+                                       cam.camera_info(header)))
 
     # ------------------------------------------------------------------ IK service
     def _solve_ik(self, request):

@@ -12,7 +12,6 @@ import numpy as np
 import rospy
 
 from baxter_pnp import robot
-from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.safety import ArmSafety, UnsafeCommand
 
@@ -103,7 +102,7 @@ class RobotSession:
         self.gripper = robot.Gripper(c.side, max_age=c.stream_max_age)
         self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
         if c.camera_calibration:
-            self.camera_override = CameraModel.from_yaml(c.camera_calibration).scaled(*c.resolution)
+            self.camera_override = c.calibrated_camera()
             rospy.loginfo('%s: camera model from %s instead of camera_info' % (self.log_name, c.camera_calibration))
         self.hand_eye = robot.hand_eye_transform(c.side)
         rospy.loginfo('%s: hand-eye from %s: camera at %s m from the gripper tip'

@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import yaml
 
-from baxter_pnp.camera import CameraModel
+from baxter_pnp.camera import CameraModel, SensorWindow
 from baxter_pnp.params import ParameterError, Parameters, load_mapping
 
 
@@ -20,7 +20,8 @@ class SessionConfig(Parameters):
     resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
     fps: int = 20                           # hand camera rate (Hz)
     camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
-                                            # camera_info; scaled to the camera mode if calibrated at another size;
+                                            # camera_info; calibrated at a larger size: its centred window of the
+                                            # mode's size (a hand camera's modes are windows of its sensor);
                                             # read when validated (a wrong file is a bad parameter)
     speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
     table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
@@ -45,10 +46,23 @@ class SessionConfig(Parameters):
         self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
         self.require(self.max_recoveries >= 0, 'max_recoveries', 'must be >= 0')
         if self.camera_calibration is not None:     # read now: a wrong file is a bad parameter, before connecting
-            try:
-                CameraModel.from_yaml(self.camera_calibration)
-            except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
-                raise ParameterError('camera_calibration', 'not a readable camera calibration: %s' % error) from None
+            self.calibrated_camera()
+
+    def calibrated_camera(self):
+        """The ``camera_calibration`` file's camera for the image of ``resolution``: the file's own model, or
+        its centred window when it was calibrated at a larger size (ParameterError if smaller or unreadable)."""
+        try:
+            camera = CameraModel.from_yaml(self.camera_calibration)
+        except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
+            raise ParameterError('camera_calibration', 'not a readable camera calibration: %s' % error) from None
+        width, height = self.resolution
+        if (camera.width, camera.height) == (width, height):
+            return camera
+        try:
+            return camera.windowed(SensorWindow.centred(camera.width, camera.height, width, height))
+        except ValueError:
+            raise ParameterError('camera_calibration', 'calibrated at %dx%d, smaller than the camera mode %dx%d: '
+                                 'calibrate at the mode used' % (camera.width, camera.height, width, height)) from None
 
 
 def field_names(config_class):

@@ -24,12 +24,12 @@ from geometry_msgs.msg import PoseArray
 from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Float64
 
-from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot import Gripper, IKFailure, Limb, RobotEnable, ServiceUnavailable, StreamLost
 from baxter_pnp.ros_image import msg_to_bgr
 from baxter_pnp.safety import ArmSafety
+from baxter_pnp.sim.cameras import sensor_model, sensor_window
 from baxter_pnp.sim.faults import (Box, CameraFaults, DelayLine, Faults, GripperFaults, IKFaults, Nudge, Occluder,
                                    Window)
 from baxter_pnp.sim.scene import Scene, SceneError, load_faults, load_scene
@@ -296,7 +296,7 @@ class TestCameraAndSceneFaults:
 
     def test_brightness_gain_and_occluder_against_an_in_process_render(self, run):
         width, height, _ = CAMERA_MODE
-        camera = load_default_camera().scaled(width, height)
+        camera = sensor_model('left_hand_camera').windowed(sensor_window(width, height))     # what the fake renders
         seen = next(image for _, stamp, image in run.frames if stamp < 3.0)
         clear_scene = run.scene.with_faults(dataclasses.replace(run.scene.faults, occluder=None))
         renders = {}

@@ -1,5 +1,6 @@
 # baxter_pnp: set-up, tests, demo and benchmarks. Everything installs itself on a fresh Debian 12
-# (root): Debian's ROS 1 packages with apt, the pinned PyPI packages in .venv.
+# (root): Debian's ROS 1 packages and Mesa's EGL (the fake's camera renderer) with apt, the pinned PyPI
+# packages in .venv.
 SHELL := /bin/bash
 ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
 VENV := $(ROOT)/.venv
@@ -11,14 +12,15 @@ APT_PACKAGES := ros-core python3-rospy python3-rostest python3-rosunit python3-r
 	python3-genpy python3-genmsg catkin python3-catkin-pkg cmake g++ make \
 	python3-std-msgs ros-std-msgs python3-std-srvs ros-std-srvs python3-geometry-msgs ros-geometry-msgs \
 	python3-sensor-msgs ros-sensor-msgs python3-rosgraph-msgs python3-tf2-msgs ros-tf2-msgs \
-	python3-tf2-ros python3-yaml python3-venv python3-dev librostest-dev
+	python3-tf2-ros python3-yaml python3-venv python3-dev librostest-dev \
+	libegl1 libegl-mesa0 libgl1-mesa-dri
 
 STAMP_APT := $(ROOT)/.stamp-apt
 STAMP_VENV := $(VENV)/.stamp-requirements
 GENERATED := $(ROOT)/src/baxter_pnp/_generated/baxter_core_msgs/__init__.py
 PTH := $(VENV)/lib/python3.11/site-packages/baxter_pnp.pth
 
-.PHONY: all setup test demo demo-perception bench-perception clean
+.PHONY: all setup test demo demo-perception bench-perception bench-render clean
 
 all: setup
 
@@ -58,6 +60,10 @@ demo-perception: setup
 
 bench-perception: setup
 	$(PY) scripts/bench_perception.py
+
+# The fake's camera renderers side by side (ms per 640x400 frame, world-loop speed); README "Fake Baxter".
+bench-render: setup
+	$(PY) scripts/bench_render.py
 
 clean:
 	rm -rf $(ROOT)/src/baxter_pnp/_generated out .pytest_cache

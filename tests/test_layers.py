@@ -21,7 +21,8 @@ FAKE_NAMESPACE = 'fake_baxter/'    # the fake's node name: its private (~) topic
 # main of a sim/ or bench/ module, checked below; docs/ARCHITECTURE.md: bench/ reads the ground truth).
 FAKE_AND_BENCH_SCRIPTS = {'fake_baxter.py': 'sim.node', 'run_trials.py': 'bench.trials',
                           'run_experiments.py': 'bench.experiments', 'bench_perception.py': 'bench.perception_bench',
-                          'demo.py': 'bench.demo', 'perception_demo.py': 'bench.perception_demo'}
+                          'demo.py': 'bench.demo', 'perception_demo.py': 'bench.perception_demo',
+                          'bench_render.py': 'bench.render_bench', 'bench_appearance.py': 'bench.appearance_stats'}
 
 
 def modules():

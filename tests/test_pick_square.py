@@ -11,10 +11,12 @@ import re
 import numpy as np
 import pytest
 import rospy
+import yaml
 from geometry_msgs.msg import PoseArray
 
 from baxter_pnp.msgs import msg
 from baxter_pnp.sim.launcher import run_script
+from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML
 from baxter_pnp.transforms import invert, pose_msg_to_matrix
 
 TABLE_TOP_Z = -0.15
@@ -45,9 +47,17 @@ def run_pick(ros_master, tmp_path, *args):
     return run, result
 
 
-@pytest.mark.parametrize('mode, start_pose', [('pbvs', 'down'), ('ibvs', 'down'), ('hybrid', 'angled')])
-def test_pick_each_mode(mode, start_pose, ros_master, ros_node, fake_baxter, tmp_path):
-    fake = fake_baxter('--real-time-factor', '0')
+@pytest.mark.parametrize('mode, start_pose, look', [('pbvs', 'down', 'clean'), ('ibvs', 'down', 'clean'),
+                                                     ('hybrid', 'angled', 'baxter')])
+def test_pick_each_mode(mode, start_pose, look, ros_master, ros_node, fake_baxter, tmp_path):
+    """One verified pick per mode; the hybrid one under the real hand camera's look (``appearance: baxter``: grey
+    textured table in dim light, vignetting, colour cast and noise; docs/fake_baxter.md, "Appearance")."""
+    with open(DEFAULT_SCENE_YAML) as f:
+        scene = yaml.safe_load(f)
+    scene['appearance'] = look
+    scene_path = tmp_path / 'scene.yaml'
+    scene_path.write_text(yaml.safe_dump(scene))
+    fake = fake_baxter('--real-time-factor', '0', '--scene', scene_path)
     try:
         z_before = ground_truth_block()[2, 3]
         run, result = run_pick(ros_master, tmp_path, '--mode', mode, '--start-pose', start_pose)

@@ -23,7 +23,7 @@ from baxter_pnp.robot.limb import _arm_joint_state, _endpoint_state
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.safety import ArmSafety, UnsafeCommand
 from baxter_pnp.transforms import from_xyz_rpy, make_transform, matrix_to_pose_msg
-from fake_baxter_client import Recorder, joint_velocity
+from fake_baxter_client import Recorder, joint_velocity, sim_sleep
 
 TABLE_Z = -0.15
 DOWN = Rotation.from_euler('xyz', [0, np.pi, 0])        # gripper pointing straight down (the 'down' start pose)
@@ -346,7 +346,7 @@ def test_velocity_commands_and_exit_control_mode(limb):
             limb.set_joint_velocities(qdot)
             time.sleep(0.02)
         limb.exit_control_mode()
-        time.sleep(0.3)
+        sim_sleep(0.5)                                          # the hold settles on the fake's clock, load or not
         q_held = limb.joint_positions()
         stamped = [(m.header.stamp.to_sec(), joint_velocity(m, 'left_w2')) for _, m in states.messages]
         moving = [m for _, m in states.messages if joint_velocity(m, 'left_w2') == pytest.approx(0.3, abs=0.01)]
@@ -365,7 +365,7 @@ def test_velocity_commands_and_exit_control_mode(limb):
     # arrived (by 0.3 rad/s x this process's delivery lag): less than followed, never more.
     assert 0.0 < moved <= 0.3 * following
     np.testing.assert_allclose(np.delete(q_held, w2), np.delete(q_start, w2), atol=0.01)
-    time.sleep(0.3)
+    sim_sleep(0.3)
     np.testing.assert_allclose(limb.joint_positions(), q_held, atol=0.005)   # held, not drifting
 
 

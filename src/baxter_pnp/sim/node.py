@@ -51,6 +51,7 @@ from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, RESOLUTION_HALF_CONTROL, Ca
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
+from baxter_pnp.sim.render import RENDERERS, RendererUnavailable
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, SceneError, load_faults, load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, matrix_to_pose_msg, pose_msg_to_matrix
@@ -635,6 +636,9 @@ def parse_args(argv):
                                                       '(repeatable, at most two)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the image noise and of the random faults; default %(default)s')
+    parser.add_argument('--renderer', choices=RENDERERS, default='auto',
+                        help='what draws the cameras: OpenGL through EGL (~5 ms a 640x400 frame) or PyBullet\'s '
+                             'TinyRenderer (~75 ms); auto: EGL where it works, else TinyRenderer; default %(default)s')
     args = parser.parse_args(argv)
     if args.real_time_factor < 0 or not math.isfinite(args.real_time_factor):
         parser.error('--real-time-factor must be >= 0')
@@ -657,7 +661,11 @@ def main(argv=None):
         sys.exit(2)
     if args.start_pose:
         scene = dataclasses.replace(scene, start=args.start_pose)
-    world = SimWorld(scene, urdf_path=DEFAULT_URDF)
+    try:
+        world = SimWorld(scene, urdf_path=DEFAULT_URDF, renderer=args.renderer)
+    except RendererUnavailable as error:
+        print(f'fake_baxter: error: --renderer {args.renderer}: {error}', file=sys.stderr)
+        sys.exit(2)
     with open(DEFAULT_URDF) as f:
         urdf_text = f.read()
     # The fake Baxter owns the clock: every node (this one included) runs on /clock.
@@ -667,6 +675,7 @@ def main(argv=None):
         print(f'fake_baxter: error: no ROS master at {rosgraph.get_master_uri()} ({error})', file=sys.stderr)
         sys.exit(1)
     rospy.init_node(NODE_NAME)
+    rospy.loginfo('fake_baxter: cameras drawn by %s', world.renderer_description)
     node = FakeBaxterNode(world, urdf_text, real_time_factor=args.real_time_factor,
                           image_encoding=args.image_encoding, enable=args.enable,
                           open_cameras=args.open_camera, seed=args.seed)

@@ -9,8 +9,9 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
     faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
     respawn: {poses: [[0.62, 0.30, 0.5], [0.70, 0.18, -1.0]], delay: 2.0, object: 0}   # (x m, y m, yaw rad)
+    appearance: clean    # 'clean' | 'baxter' | {preset: baxter, exposure: 0.5, ...}: sim.appearance
 
-``table``, ``start``, ``camera_error``, ``faults`` and ``respawn`` (and each of their keys, except
+``table``, ``start``, ``camera_error``, ``faults``, ``respawn`` and ``appearance`` (and each of their keys, except
 ``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the defaults; no
 faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required, and
 blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
@@ -30,6 +31,8 @@ from baxter_pnp.kinematics import arm_joint_names, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
 from baxter_pnp.params import ParameterError, Parameters, from_mapping
 from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.sim import appearance
+from baxter_pnp.sim.appearance import AppearanceConfig
 from baxter_pnp.sim.faults import Faults
 from baxter_pnp.transforms import from_xyz_rpy
 
@@ -146,6 +149,7 @@ class Scene(Parameters):
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
     respawn: Optional[Respawn] = None
+    appearance: AppearanceConfig = field(default_factory=AppearanceConfig)
 
     def validate(self):
         for i, obj in enumerate(self.objects):
@@ -183,6 +187,8 @@ class Scene(Parameters):
     @classmethod
     def from_dict(cls, values, where=''):
         """Scene from a dictionary (parsed YAML); ``SceneError`` naming the bad key."""
+        if isinstance(values, dict) and 'appearance' in values:
+            values = {**values, 'appearance': appearance.expand(values['appearance'])}
         with _scene_errors():
             return super().from_dict(values, where)
 

@@ -23,6 +23,8 @@ rise, while the gripper holds the opening it gripped at and keeps reporting ``gr
 let go is moved to the next of its respawn poses (``respawns`` counts the moves).
 """
 import math
+import os
+import tempfile
 
 import cv2
 import numpy as np
@@ -31,8 +33,10 @@ import pybullet as p
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, arm_joint_names, body_indices,
                                    link_pose)
+from baxter_pnp.sim import appearance
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
-from baxter_pnp.transforms import from_xyz_quat, invert, make_transform
+from baxter_pnp.sim.render import make_renderer
+from baxter_pnp.transforms import from_xyz_quat, make_transform
 
 ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
 ARM_ACCELERATION = 3.0          # rad/s^2 of the position set-point profile
@@ -49,23 +53,19 @@ BLOCK_MARGIN = 0.001            # m, Bullet collision margin of the blocks' conv
 BLOCK_DENSITY = 780.0           # kg/m^3 (wood: a 40 x 40 x 20 mm square weighs 25 g)
 FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
 TABLE_THICKNESS = 0.04          # m
-TABLE_COLOR = (0.86, 0.86, 0.84, 1.0)
 RESPAWN_LIFT = 0.03             # m: a block counts as lifted once its underside is this far above the table top
 RESPAWN_TIP_CLEARANCE = 0.08    # m: every gripper tip must be this far above the block's top before a respawn
 RESPAWN_STILL_SPEED = 0.01      # m/s: a block whose points all move slower than this is at rest (resting
                                 # blocks jitter at up to ~3 mm/s in PyBullet, a sliding or rocking one is faster)
-CAMERA_NEAR, CAMERA_FAR = 0.01, 3.0          # m, render clipping planes
-IMAGE_NOISE_STD = 2.0           # grey levels (Gazebo's camera noise: 0.007 x 255)
-LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightDistance=2.0,
-             lightAmbientCoeff=0.55, lightDiffuseCoeff=0.45, lightSpecularCoeff=0.02, shadow=0)
-# OpenGL camera (x right, y up, looking along -z) from the optical frame (x right, y down, z forward).
-T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 class SimWorld(PyBulletClientOwner):
-    """The simulated Baxter, table and blocks of ``scene`` (a ``sim.scene.Scene``); see docs/ARCHITECTURE.md."""
+    """The simulated Baxter, table and blocks of ``scene`` (a ``sim.scene.Scene``); see docs/ARCHITECTURE.md.
 
-    def __init__(self, scene, urdf_path=None, time_step=1 / 240.0):
+    ``renderer`` draws the cameras: 'auto' (OpenGL through EGL where it works, else PyBullet's TinyRenderer),
+    'egl' or 'tiny' (``sim.render``); ``renderer_name`` says which one runs."""
+
+    def __init__(self, scene, urdf_path=None, time_step=1 / 240.0, renderer='auto'):
         self.scene = scene
         self.time_step = float(time_step)
         self.time = 0.0
@@ -94,7 +94,28 @@ class SimWorld(PyBulletClientOwner):
         self.set_arm_positions('left', scene.start_positions())
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
+        self._renderer = make_renderer(renderer, self._client, {
+            body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
+            for body, obj in zip(self._blocks, scene.objects)}, textured=scene.appearance.table_texture > 0)
+        self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance
         self._respawner = None if scene.respawn is None else _Respawner(self, scene.respawn)
+
+    @property
+    def renderer_name(self):
+        """'egl' or 'tiny': the renderer drawing the cameras (``sim.render``)."""
+        return self._renderer.name
+
+    @property
+    def renderer_description(self):
+        """What draws the cameras, e.g. 'OpenGL through EGL (llvmpipe (LLVM 15.0.6, 256 bits))'."""
+        return self._renderer.description
+
+    def close(self):
+        """Free the renderer and disconnect the PyBullet client."""
+        renderer, self._renderer = getattr(self, '_renderer', None), None
+        if renderer is not None:
+            renderer.close()
+        super().close()
 
     @property
     def respawns(self):
@@ -105,12 +126,20 @@ class SimWorld(PyBulletClientOwner):
     def _make_table(self, table):
         half = [table.size[0] / 2, table.size[1] / 2, TABLE_THICKNESS / 2]
         collision = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self._client)
-        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=TABLE_COLOR,
-                                     physicsClientId=self._client)
+        look = self.scene.appearance
+        textured = look.table_texture > 0
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self._client,
+                                     rgbaColor=[1.0, 1.0, 1.0, 1.0] if textured else [*look.table_color, 1.0])
         body = p.createMultiBody(0.0, collision, visual,
                                  [table.center[0], table.center[1], table.top_z - TABLE_THICKNESS / 2],
                                  physicsClientId=self._client)
         p.changeDynamics(body, -1, lateralFriction=FRICTION['table'], physicsClientId=self._client)
+        if textured:        # PyBullet loads textures from files only
+            with tempfile.TemporaryDirectory() as folder:
+                path = os.path.join(folder, 'table.png')
+                cv2.imwrite(path, cv2.cvtColor(appearance.table_texture(look), cv2.COLOR_RGB2BGR))
+                texture = p.loadTexture(path, physicsClientId=self._client)
+            p.changeVisualShape(body, -1, textureUniqueId=texture, physicsClientId=self._client)
         return body
 
     def _make_block(self, obj):
@@ -278,25 +307,22 @@ class SimWorld(PyBulletClientOwner):
         """uint8 BGR (H, W, 3) image of ``camera`` (a ``CameraModel``) mounted at ``link``'s optical frame.
 
         The true camera is the published one perturbed by ``scene.camera_error`` (mount offset, focal
-        scale). It is rendered as an ideal pinhole with a margin (PyBullet TinyRenderer), warped with
-        the true camera's distortion (``CameraModel.rendering_maps``), its intensities multiplied by
-        ``gain`` (a lighting change; 0 = black, nothing is rendered) and given Gaussian noise of
-        ``IMAGE_NOISE_STD`` grey levels drawn from ``rng`` (no noise if ``rng`` is None).
+        scale). It is rendered as an ideal pinhole with a margin (``renderer_name``), warped with
+        the true camera's distortion (``CameraModel.rendering_maps``), then formed as ``scene.appearance``
+        says (``sim.appearance.form_image``: exposure, white balance, vignetting; its intensities multiplied
+        by ``gain``, a lighting change, 0 = black, nothing rendered; noise drawn from ``rng``, none if None).
         """
         if gain > 0:
             image = self._render(link, camera)
         else:
             image = np.zeros((camera.height, camera.width, 3), np.uint8)
-        if rng is None and gain == 1.0:
+        look = self.scene.appearance
+        if rng is None and gain == 1.0 and not look.scales_intensity():
             return image
-        value = image.astype(np.float32)
-        value *= np.float32(gain)
-        if rng is not None:
-            noise = rng.standard_normal(image.shape, dtype=np.float32)
-            noise *= IMAGE_NOISE_STD
-            value += noise
-        value += np.float32(0.5)
-        return np.clip(value, 0, 255, out=value).astype(np.uint8)
+        key = (camera.width, camera.height, tuple(camera.K.ravel()))
+        if key not in self._vignettes:
+            self._vignettes[key] = appearance.vignetting_gain(camera, look.vignetting)
+        return appearance.form_image(image, look, camera, rng, gain, self._vignettes[key])
 
     def _render(self, link, camera):
         """Noise-free uint8 BGR image of ``camera`` at ``link`` (see ``render_camera``)."""
@@ -307,11 +333,7 @@ class SimWorld(PyBulletClientOwner):
         true_camera = CameraModel(camera.width, camera.height, K_true, camera.D)
         ideal = self._ideal_camera(true_camera)
         T_base_camera = self.link_pose(link) @ error.T_published_true
-        view = T_OPENGL_OPTICAL @ invert(T_base_camera)
-        _, _, rgba, _, _ = p.getCameraImage(
-            ideal.width, ideal.height, view.T.ravel().tolist(), _opengl_projection(ideal).T.ravel().tolist(),
-            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self._client, **LIGHT)
-        bgr = np.ascontiguousarray(np.reshape(rgba, (ideal.height, ideal.width, 4))[:, :, 2::-1])
+        bgr = self._renderer.render(T_base_camera, ideal)
         return cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ideal_camera(self, true_camera):
@@ -628,14 +650,3 @@ def _prism_mesh(top_xy, height):
         face([bottom[a], bottom[b], top[b], top[a]], tuple(outward / np.linalg.norm(outward)))
     return np.array(vertices), np.array(normals), np.array(indices)
 
-
-def _opengl_projection(camera, near=CAMERA_NEAR, far=CAMERA_FAR):
-    """4x4 OpenGL projection matrix making PyBullet's TinyRenderer image (row 0 on top) that of the pinhole
-    ``camera`` in OpenCV pixel convention. TinyRenderer samples pixel column u at NDC x = 2u/W - 1 and row v at
-    NDC y = 1 - 2(v + 1)/H (measured: rendered blocks land on ``camera.project`` to 0.1 px)."""
-    w, h = camera.width, camera.height
-    return np.array([
-        [2 * camera.fx / w, 0.0, 1 - 2 * camera.cx / w, 0.0],
-        [0.0, 2 * camera.fy / h, 2 * (camera.cy + 1) / h - 1, 0.0],
-        [0.0, 0.0, -(far + near) / (far - near), -2 * far * near / (far - near)],
-        [0.0, 0.0, -1.0, 0.0]])

@@ -1,0 +1,131 @@
+"""How the fake's camera images look: the scene key ``appearance`` and the image formation applied to each render.
+
+``appearance: clean`` is the look the fake always had (a light table, full light, noise of 2 grey levels per
+channel); ``appearance: baxter`` is measured on real Baxter hand-camera frames (``../shared/real/baxter_hand_a``,
+``baxter_hand_b``; ``bench/appearance_stats.py`` prints real and rendered statistics side by side): a grey table
+in dim light, vignetting, a slight colour cast, noise in every channel. A mapping overrides a preset's keys:
+``appearance: {preset: baxter, exposure: 0.4}``. Pure (numpy, OpenCV): the world renders, then ``form_image`` turns the render into the camera's
+image.
+"""
+import functools
+from dataclasses import dataclass
+from typing import Tuple
+
+import cv2
+import numpy as np
+
+from baxter_pnp.params import Parameters
+
+PRESETS = {
+    'clean': {},
+    # Medians over the 35 real frames (bench/appearance_stats.py): table L* 25-36 at the image median, corners
+    # at 0.45-0.65 of the centre, a blue-green cast (B/G 0.94-1.06, R/G 0.90-0.98 on grey), noise 1.1-1.3 grey
+    # levels per channel after the camera's own processing.
+    'baxter': {'table_color': (0.42, 0.42, 0.42), 'table_texture': 0.12, 'exposure': 0.85,
+               'white_balance': (0.94, 1.0, 1.0), 'vignetting': 0.5, 'noise_std': 0.9, 'colour_noise_std': 0.7},
+}
+
+
+@dataclass(frozen=True)
+class AppearanceConfig(Parameters):
+    """``table_color`` RGB 0..1; ``table_texture``: relative contrast of the table's speckle (0 flat);
+    ``exposure``: scales every intensity (light level x exposure x gain); ``white_balance``: gains on
+    (R, G, B); ``vignetting``: brightness in the image corners relative to the optical centre (1 none, a
+    cos^4-like fall-off); ``noise_std``: grey-level noise common to the three channels; ``colour_noise_std``:
+    independent noise per channel (grey levels)."""
+    preset: str = 'clean'
+    table_color: Tuple[float, float, float] = (0.86, 0.86, 0.84)
+    table_texture: float = 0.0
+    exposure: float = 1.0
+    white_balance: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    vignetting: float = 1.0
+    noise_std: float = 0.0
+    colour_noise_std: float = 2.0          # Gazebo's camera noise: 0.007 x 255
+
+    def validate(self):
+        self.require(self.preset in PRESETS, 'preset', 'must be one of %s' % ', '.join(PRESETS))
+        self.require(all(0.0 <= c <= 1.0 for c in self.table_color), 'table_color', 'must be RGB in 0..1')
+        self.require(0.0 <= self.table_texture <= 1.0, 'table_texture', 'must be in 0..1')
+        self.require(self.exposure > 0.0, 'exposure', 'must be > 0')
+        self.require(all(g > 0.0 for g in self.white_balance), 'white_balance', 'gains must be > 0')
+        self.require(0.0 < self.vignetting <= 1.0, 'vignetting', 'must be in (0, 1]')
+        self.require(self.noise_std >= 0.0 and self.colour_noise_std >= 0.0, 'noise_std', 'must be >= 0')
+
+    def scales_intensity(self):
+        """True if ``form_image`` changes a noise-free render (exposure, white balance or vignetting)."""
+        return self.exposure != 1.0 or tuple(self.white_balance) != (1.0, 1.0, 1.0) or self.vignetting < 1.0
+
+
+
+def expand(value):
+    """The mapping of a scene's ``appearance`` value (a preset name, or a mapping of ``preset`` plus overrides):
+    the preset's keys, overridden by the mapping's; other values are returned as they are (the parameter
+    check names them)."""
+    if isinstance(value, str):
+        value = {'preset': value}
+    if not isinstance(value, dict):
+        return value
+    preset = value.get('preset', 'clean')
+    return {**PRESETS.get(preset, {}), **value}
+
+
+def table_texture(config, size=1024, seed=0):
+    """(size, size, 3) uint8 RGB texture of the table: ``table_color`` with a speckle of relative contrast
+    ``table_texture`` (grains of about 2 texels, 1-1.5 mm on the default table)."""
+    rng = np.random.default_rng(seed)
+    speckle = cv2.GaussianBlur(rng.standard_normal((size, size)).astype(np.float32), (0, 0), 1.2)
+    speckle /= speckle.std()
+    shade = 1.0 + config.table_texture * speckle
+    rgb = np.asarray(config.table_color, np.float32)[None, None, :] * shade[:, :, None]
+    return np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def vignetting_gain(camera, corner_brightness):
+    """(H, W) float32 brightness factor of ``camera``'s pixels: 1 at the principal point, ``corner_brightness``
+    at the farthest image corner, following cos^4 of the ray angle rescaled to that corner value."""
+    if corner_brightness >= 1.0:
+        return None
+    u = (np.arange(camera.width, dtype=np.float32) - camera.cx) / camera.fx
+    v = (np.arange(camera.height, dtype=np.float32) - camera.cy) / camera.fy
+    r2 = u[None, :] ** 2 + v[:, None] ** 2
+    cos4 = 1.0 / (1.0 + r2) ** 2
+    corner = float(cos4.min())
+    return (1.0 - (1.0 - cos4) / (1.0 - corner) * (1.0 - corner_brightness)).astype(np.float32)
+
+
+def form_image(render_bgr, config, camera, rng=None, gain=1.0, vignette=None):
+    """The camera's uint8 BGR image of a noise-free render: intensities x ``exposure`` x ``gain`` (a lighting
+    fault) x white balance x vignetting (``vignette``, from ``vignetting_gain``), then noise from ``rng`` (none if
+    None), rounded and clipped."""
+    scale = np.float32(config.exposure * gain) * np.asarray(config.white_balance[::-1], np.float32)   # B, G, R
+    value = render_bgr.astype(np.float32)
+    value *= scale
+    if vignette is not None:
+        value *= vignette[:, :, None]
+    if rng is not None and (config.noise_std > 0 or config.colour_noise_std > 0):
+        value += _noise_bank(render_bgr.shape, config.noise_std, config.colour_noise_std).draw(rng)
+    value += np.float32(0.5)
+    return np.clip(value, 0, 255, out=value).astype(np.uint8)
+
+
+class NoiseBank:
+    """Sensor noise at a frame rate the fake can afford: ``FRAMES`` noise images (a part common to the channels,
+    std ``common_std``, plus an independent part per channel, std ``colour_std``; grey levels), drawn once; each
+    frame takes one of them, circularly shifted by a random offset (1 ms instead of 13-18 ms for fresh normal
+    draws at 640x400; neighbouring pixels stay independent, and a frame never repeats the previous one's noise)."""
+    FRAMES = 8
+
+    def __init__(self, shape, common_std, colour_std, seed=0):
+        rng = np.random.default_rng(seed)
+        height, width, channels = shape
+        bank = rng.standard_normal((self.FRAMES, height, width, channels), dtype=np.float32) * np.float32(colour_std)
+        bank += rng.standard_normal((self.FRAMES, height, width, 1), dtype=np.float32) * np.float32(common_std)
+        self.frames = bank
+
+    def draw(self, rng):
+        """(H, W, C) float32 noise for one frame, chosen and shifted with ``rng``."""
+        index, dy, dx = rng.integers(self.FRAMES), rng.integers(self.frames.shape[1]), rng.integers(self.frames.shape[2])
+        return np.roll(self.frames[index], (int(dy), int(dx)), axis=(0, 1))
+
+
+_noise_bank = functools.lru_cache(maxsize=8)(NoiseBank)

@@ -1,0 +1,193 @@
+"""Camera renderers (sim.render): OpenGL through EGL draws what PyBullet's TinyRenderer draws, follows the scene,
+costs a fraction of it, and gives way to TinyRenderer where EGL cannot run or a shape is textured.
+
+Images are compared pixel by pixel (mean absolute difference in grey levels, BGR) and by the centroid of the
+green block's top face (px). The EGL parts skip, with the reason, on a machine where EGL cannot start.
+"""
+import dataclasses
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pybullet as p
+import pytest
+
+from baxter_pnp.sim import render
+from baxter_pnp.sim.cameras import sensor_model, sensor_window
+from baxter_pnp.sim.launcher import FakeBaxterProcess
+from baxter_pnp.sim.scene import load_scene
+from baxter_pnp.sim.world import SimWorld
+from baxter_pnp.transforms import make_transform
+
+NO_EGL_ENV = {'__EGL_VENDOR_LIBRARY_FILENAMES': '/nonexistent/egl_vendor.json'}   # glvnd finds no EGL driver
+FALLBACK_LOG = 'camera renderer: EGL not used'
+
+
+def egl_problem():
+    """Why EGL cannot run here, or '' if it can."""
+    try:
+        render._shared_context()
+    except render.RendererUnavailable as error:
+        return str(error)
+    return ''
+
+
+needs_egl = pytest.mark.skipif(bool(egl_problem()), reason=f'EGL unavailable here: {egl_problem()}')
+
+
+@pytest.fixture(scope='module')
+def camera():
+    """The fake's left hand camera at 640x400 (a centred window of the 1280x800 sensor, with distortion)."""
+    return sensor_model('left_hand_camera').windowed(sensor_window(640, 400))
+
+
+def green_top(image):
+    """Boolean mask of the lit green top face of a block (BGR image)."""
+    hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    return (hsv[:, :, 0] > 45) & (hsv[:, :, 0] < 75) & (hsv[:, :, 1] > 100) & (hsv[:, :, 2] > 150)
+
+
+def centroid(mask):
+    """(u, v) px centroid of a boolean mask."""
+    rows, columns = np.nonzero(mask)
+    return np.array([columns.mean(), rows.mean()])
+
+
+def mean_abs_difference(a, b):
+    return float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
+
+
+def process_cpu_seconds():
+    """CPU seconds used by this process so far, all its threads (the rasteriser's too)."""
+    with open('/proc/self/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def cpu_per_frame(world, camera, frames=5):
+    """CPU seconds of this process per ``world.render_camera`` of ``camera`` (noise-free)."""
+    world.render_camera('left_hand_camera', camera)
+    started = process_cpu_seconds()
+    for _ in range(frames):
+        world.render_camera('left_hand_camera', camera)
+    return (process_cpu_seconds() - started) / frames
+
+
+@needs_egl
+@pytest.mark.parametrize('start', ['down', 'angled'])
+def test_egl_draws_the_hand_camera_as_tinyrenderer_does_for_a_tenth_of_the_cpu(camera, start):
+    """Two worlds of the default scene, one per renderer: same image (incl. lens distortion), same block."""
+    scene = dataclasses.replace(load_scene(), start=start)
+    worlds = {kind: SimWorld(scene, renderer=kind) for kind in ('tiny', 'egl')}
+    try:
+        assert {kind: world.renderer_name for kind, world in worlds.items()} == {'tiny': 'tiny', 'egl': 'egl'}
+        images = {kind: world.render_camera('left_hand_camera', camera) for kind, world in worlds.items()}
+        # measured 0.000 (down) and 0.001 (angled): a handful of silhouette pixels where the two rasterisers
+        # break ties differently; the margin allows a few hundred such pixels, not a shading or colour change
+        assert mean_abs_difference(images['tiny'], images['egl']) < 0.05
+        # the same 8-bit arithmetic: measured 0 and 1e-5 of the pixels differ at all (off by one grey level where
+        # the shading is computed a hair differently would touch most of the image)
+        assert np.mean(np.any(images['tiny'] != images['egl'], axis=2)) < 0.001
+        masks = {kind: green_top(image) for kind, image in images.items()}
+        assert masks['tiny'].sum() > 500
+        # measured equal masks: the same pixels; a half-pixel convention error would move the centroid 0.5 px
+        assert masks['egl'].sum() == pytest.approx(masks['tiny'].sum(), rel=0.005)
+        assert np.hypot(*(centroid(masks['egl']) - centroid(masks['tiny']))) < 0.05
+        # measured 7-9 ms against 75-80 ms a frame (with remap); a third leaves room for contention with
+        # other processes and still fails if the frames came from TinyRenderer
+        assert cpu_per_frame(worlds['egl'], camera) < 0.3 * cpu_per_frame(worlds['tiny'], camera)
+    finally:
+        for world in worlds.values():
+            world.close()
+
+
+@needs_egl
+def test_egl_follows_the_scene_and_draws_the_arm_as_tinyrenderer_does():
+    """A view of the robot (cylinders, boxes, the block); then a moved block, a recoloured link, a moved arm and
+    a body added after the renderer was made: each drawn by both renderers alike."""
+    world = SimWorld(dataclasses.replace(load_scene(), start='angled'), renderer='egl')
+    meshes = world._renderer._meshes
+    tiny, egl = render.TinyRenderer(world._client), render.EglRenderer(world._client, meshes)
+    ideal = sensor_model('front').windowed(sensor_window(640, 400)).scaled(320, 200)
+    # optical frame 1.8 m in front of the robot, looking back at it (z toward -x base, y down)
+    T_base_camera = make_transform(np.column_stack([[0, 1, 0], [0, 0, -1], [-1, 0, 0]]).astype(float),
+                                   [1.8, 0.2, 0.3])
+    try:
+        def difference():
+            return mean_abs_difference(tiny.render(T_base_camera, ideal), egl.render(T_base_camera, ideal))
+        before = egl.render(T_base_camera, ideal)
+        # measured 0.15: the cylinders' silhouettes (the two tessellate their rims alike, but the hulls' triangles
+        # differ); a missing link or a wrong colour costs several grey levels
+        assert difference() < 0.5
+        world.place_object(0, (0.75, 0.35), 0.3)
+        p.changeVisualShape(world._robot, world._links['left_upper_elbow'], rgbaColor=[0.1, 0.2, 0.9, 1.0],
+                            physicsClientId=world._client)
+        world.command_arm_positions('left', {'left_s0': 0.4, 'left_e1': 1.2}, speed_ratio=1.0)
+        world.step(240)
+        box = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.05, 0.05, 0.05], rgbaColor=[0.9, 0.6, 0.1, 1.0],
+                                  physicsClientId=world._client)
+        p.createMultiBody(0.0, -1, box, [0.6, -0.2, 0.1], physicsClientId=world._client)
+        after = egl.render(T_base_camera, ideal)
+        assert mean_abs_difference(before, after) > 2.0       # the changes show
+        assert difference() < 0.5
+    finally:
+        egl.close()
+        world.close()
+
+
+@needs_egl
+def test_shapes_egl_does_not_draw_go_to_tinyrenderer(camera, caplog):
+    """Textures (PyBullet gives them back to no one): 'auto' picks TinyRenderer, 'egl' refuses. A sphere added
+    to the scene later: TinyRenderer draws the frames from then on, said once in the log."""
+    world = SimWorld(load_scene(), renderer='egl')
+    try:
+        meshes = world._renderer._meshes
+        assert render.make_renderer('auto', world._client, meshes, textured=True).name == 'tiny'
+        with pytest.raises(render.RendererUnavailable, match='textured'):
+            render.make_renderer('egl', world._client, meshes, textured=True)
+        sphere = p.createVisualShape(p.GEOM_SPHERE, radius=0.02, rgbaColor=[0.9, 0.1, 0.1, 1.0],
+                                     physicsClientId=world._client)
+        T_camera = world.link_pose('left_hand_camera')
+        p.createMultiBody(0.0, -1, sphere, (T_camera @ [0.0, 0.0, 0.2, 1.0])[:3], physicsClientId=world._client)
+        with caplog.at_level('WARNING', logger=render.__name__):
+            images = [world.render_camera('left_hand_camera', camera) for _ in range(2)]
+        assert len([r for r in caplog.records if 'switching from EGL to TinyRenderer' in r.message]) == 1
+        assert world.renderer_description == 'PyBullet TinyRenderer'
+        red = (images[1][:, :, 2] > 150) & (images[1][:, :, 1] < 60)
+        assert red.sum() > 1000                 # the sphere, 20 cm in front of the lens
+    finally:
+        world.close()
+
+
+def test_without_egl_auto_uses_tinyrenderer_with_one_log_line_and_egl_is_refused():
+    """A machine without an EGL driver (glvnd pointed at none): 'auto' gives TinyRenderer, logged once per
+    process; 'egl' raises; BAXTER_PNP_RENDERER=tiny makes 'auto' TinyRenderer without trying EGL."""
+    code = ('from baxter_pnp.sim.scene import load_scene\n'
+            'from baxter_pnp.sim.world import SimWorld\n'
+            'from baxter_pnp.sim.render import RendererUnavailable\n'
+            'print("renderers", SimWorld(load_scene()).renderer_name, SimWorld(load_scene()).renderer_name)\n'
+            'try:\n'
+            '    SimWorld(load_scene(), renderer="egl")\n'
+            'except RendererUnavailable as error:\n'
+            '    print("refused", error)\n')
+    done = subprocess.run([sys.executable, '-c', code], env={**os.environ, **NO_EGL_ENV}, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert 'renderers tiny tiny' in done.stdout and 'refused no EGL display' in done.stdout
+    assert done.stderr.count(FALLBACK_LOG) == 1
+    forced = subprocess.run([sys.executable, '-c', code.replace('    SimWorld(load_scene(), renderer="egl")',
+                                                                '    pass')],
+                            env={**os.environ, render.RENDERER_ENV: 'tiny'}, capture_output=True, text=True,
+                            timeout=120)
+    assert 'renderers tiny tiny' in forced.stdout and FALLBACK_LOG not in forced.stderr
+
+
+def test_the_fake_refuses_renderer_egl_where_egl_cannot_run(tmp_path, monkeypatch):
+    """``fake_baxter.py --renderer egl`` on a machine without EGL exits 2 before touching ROS, saying why."""
+    for key, value in NO_EGL_ENV.items():
+        monkeypatch.setenv(key, value)
+    process = FakeBaxterProcess(None, ['--renderer', 'egl'], log_path=tmp_path / 'fake.log')
+    assert process.run_to_exit() == 2
+    assert 'fake_baxter: error: --renderer egl: no EGL display' in process.log()

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 import pybullet as p
 
+from baxter_pnp.camera import CameraModel
 from baxter_pnp.transforms import invert
 
 LOG = logging.getLogger(__name__)
@@ -156,6 +157,9 @@ class EglRenderer:
             self._uniforms = {smooth: {name: self._gl.uniform(program, name) for name in _UNIFORMS}
                               for smooth, program in self._programs.items()}
             self._sync_scene()
+        # Mesa compiles the shaders at the first draw (LLVM; 45 ms idle, seconds on a loaded machine): draw once
+        # now, while the fake boots, not at the first camera frame, where the stall would silence every stream.
+        self._render(np.eye(4), CameraModel(64, 40, [[40.0, 0.0, 32.0], [0.0, 40.0, 20.0], [0.0, 0.0, 1.0]]))
 
     @property
     def description(self):

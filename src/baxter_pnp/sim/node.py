@@ -538,8 +538,9 @@ class FakeBaxterNode:
         """(image, camera_info) publishers of camera ``name``, advertised when first needed."""
         if name not in self._image_pubs:
             image_topic, info_topic = sdk.camera_topics(name)
-            self._image_pubs[name] = (rospy.Publisher(image_topic, Image, queue_size=2),
-                                      rospy.Publisher(info_topic, CameraInfo, queue_size=2))
+            # 10 frames queued per subscriber: unpaced, the fake can publish faster than a busy subscriber reads
+            self._image_pubs[name] = (rospy.Publisher(image_topic, Image, queue_size=10),
+                                      rospy.Publisher(info_topic, CameraInfo, queue_size=10))
         return self._image_pubs[name]
 
     def _capture_camera(self, name, cam, now):

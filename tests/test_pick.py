@@ -32,7 +32,7 @@ def test_config_validation_names_the_key():
 
 def test_table_plane_in_camera_contains_table_points():
     T_base_camera = gripper_down_at(0.6, 0.2, 0.3) @ T_GRIPPER_CAMERA
-    plane = models.table_plane_in_camera(T_base_camera, -0.15)
+    plane = models.table_plane_in_camera(T_base_camera, models.Plane.level(-0.15))
     table_points_base = np.array([[0.5, 0.1, -0.15], [0.8, 0.4, -0.15], [0.65, 0.2, -0.15]])
     table_points_camera = transform_points(invert(T_base_camera), table_points_base)
     np.testing.assert_allclose(table_points_camera @ plane.normal, plane.offset, atol=1e-12)

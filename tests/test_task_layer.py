@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 from baxter_pnp import pick
 from baxter_pnp.camera import SensorWindow, load_default_camera
 from baxter_pnp.params import ParameterError
+from baxter_pnp.models import Plane
 from baxter_pnp.perception import BlockObservation
 from baxter_pnp.pose import PoseEstimate
 from baxter_pnp.task import target
@@ -15,7 +16,7 @@ from baxter_pnp.transforms import invert, make_transform
 from baxter_pnp.vision import Detection
 
 TABLE_Z = -0.15
-RULES = target.TargetRules('square', 'green', 0.04, 0.02, TABLE_Z, max_residual_px=2.0, max_height_error=0.02,
+RULES = target.TargetRules('square', 'green', 0.04, 0.02, Plane.level(TABLE_Z), max_residual_px=2.0, max_height_error=0.02,
                            place_xy=(0.62, 0.12))
 DOWN = Rotation.from_euler('x', np.pi)             # camera looking straight down (optical z = -base z)
 T_BASE_CAMERA = make_transform(DOWN, (0.65, 0.10, 0.25))

@@ -24,8 +24,8 @@ def hover_over_block(config, session_config):
     motion = Motion(session)
     eye = Eye(session, vision.VisionConfig.from_yaml(),
               BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
-                         session_config.table_top_z))
-    rules = target.TargetRules.of(config, session_config.table_top_z)
+                         session.table))
+    rules = target.TargetRules.of(config, session.table)
     motion.move_to_joints(session.start_pose(config.start_pose), 'start pose')
     look = eye.look(choose=lambda observations, T_base_camera, camera: target.choose_target(
         observations, T_base_camera, rules, (camera.width, camera.height)))

@@ -12,6 +12,8 @@ from functools import cached_property
 
 import numpy as np
 
+from baxter_pnp.transforms import invert
+
 SHAPES = {'triangle': 3, 'square': 4, 'pentagon': 5, 'hexagon': 6}
 
 
@@ -82,13 +84,24 @@ class Plane:
         normal_b = T_b_a[:3, :3] @ self.normal
         return Plane(normal_b, self.offset + normal_b @ T_b_a[:3, 3])
 
+    @classmethod
+    def level(cls, z):
+        """The horizontal plane at height ``z`` (m), normal +z."""
+        return cls(np.array([0.0, 0.0, 1.0]), float(z))
+
+    def z_at(self, xy):
+        """Height (m) of the plane above the point ``xy`` (x, y); the normal must not be horizontal."""
+        return float((self.offset - self.normal[0] * xy[0] - self.normal[1] * xy[1]) / self.normal[2])
+
+    def tilt(self):
+        """Angle (rad) between the normal and +z."""
+        return float(np.arccos(np.clip(abs(self.normal[2]), 0.0, 1.0)))
+
     def signed_distance(self, points):
         """Signed distance (m) of a point (3,) or points (N, 3) to the plane, positive on the normal's side."""
         return np.asarray(points, dtype=float) @ self.normal - self.offset
 
 
-def table_plane_in_camera(T_base_camera, table_top_z):
-    """The table top (z = ``table_top_z`` in base, normal +z) as a ``Plane`` in the camera frame."""
-    R, t = T_base_camera[:3, :3], T_base_camera[:3, 3]
-    normal_base = np.array([0.0, 0.0, 1.0])
-    return Plane(R.T @ normal_base, float(table_top_z - normal_base @ t))
+def table_plane_in_camera(T_base_camera, table):
+    """The table top ``table`` (a ``Plane`` in base, e.g. ``Plane.level(z)``) as a ``Plane`` in the camera frame."""
+    return table.transformed(invert(T_base_camera))

@@ -14,7 +14,6 @@ works on a real robot and on the fake Baxter:
 One log line per servo step and per arm command. Exit status 0 only on a verified pick (and place).
 """
 import argparse
-import json
 import os
 import time
 
@@ -24,12 +23,11 @@ import rospy
 from baxter_pnp import pick, robot, servo, vision
 from baxter_pnp.params import ParameterError
 from baxter_pnp.runtime import PACKAGE_ROOT
-from baxter_pnp.task import target
+from baxter_pnp.task import cli, target
 from baxter_pnp.task.eye import BlockQuery, Eye
 from baxter_pnp.task.motion import Motion
 from baxter_pnp.task.outputs import Outputs
 from baxter_pnp.task.session import FATAL_REASONS, RobotSession, TaskFailure, failure_reason
-from baxter_pnp.task.settings import SessionConfig, field_names, load_configs
 from baxter_pnp.transforms import invert, pose_error
 
 DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
@@ -47,9 +45,9 @@ class PickApplication:
         self.outputs = Outputs(output_dir, result_json, session_config.cycles, config.mode)
         self.eye = Eye(self.session, vision_config,
                        BlockQuery(config.shape, config.colour, config.side_length, config.block_height,
-                                  config.estimator, session_config.table_top_z),
+                                  config.estimator, self.session.table),
                        views_dir=self.outputs.views_dir if session_config.save_views else None)
-        self.rules = target.TargetRules.of(config, session_config.table_top_z)
+        self.rules = target.TargetRules.of(config, self.session.table)
         self.result = pick.PickResult(success=False, mode=config.mode)
         self.results = []
         self.T_base_last_block = None   # the block's last believed pose (tracking, search)
@@ -313,7 +311,8 @@ class PickApplication:
         if look.target is None:
             rospy.logwarn('pick: the look after lifting does not see the block (occluded?); gripper reports gripping')
             return True
-        if pick.left_behind(look.T_base_block, T_base_block_before, self.rules.table_top_z, self.config.block_height):
+        table_z = self.session.table.z_at(look.T_base_block[:2, 3])
+        if pick.left_behind(look.T_base_block, T_base_block_before, table_z, self.config.block_height):
             rospy.logwarn('pick: a look finds the block still on the table: the gripper holds something else')
             return False
         T_gripper_block_seen = invert(look.T_base_gripper) @ look.T_base_block
@@ -330,12 +329,13 @@ class PickApplication:
 
     def place(self):
         """Carry the block to ``place_xy``, lower it to the table, open, retreat, look where it went."""
-        c, limb, table_top_z = self.config, self.session.limb, self.rules.table_top_z
+        c, limb = self.config, self.session.limb
+        table_z = self.session.table.z_at(c.place_xy)
         rospy.loginfo('pick: placing the block at (%.3f, %.3f) m' % tuple(c.place_xy))
         self.motion.move_to_pose(pick.place_pose(limb.endpoint_pose(), self.T_gripper_block, c.place_xy, c,
-                                                 table_top_z, c.lift_height), 'carry to the place position')
+                                                 table_z, c.lift_height), 'carry to the place position')
         self.motion.move_to_pose(pick.place_pose(limb.endpoint_pose(), self.T_gripper_block, c.place_xy, c,
-                                                 table_top_z, c.place_clearance), 'lower to the table')
+                                                 table_z, c.place_clearance), 'lower to the table')
         if not self.session.gripper.open(block=True, timeout=3.0):
             raise TaskFailure('gripper', 'the gripper did not open to release the block')
         self.motion.move_up(c.lift_height, 'retreat')
@@ -369,69 +369,54 @@ class PickApplication:
 # ==================================================================================== entry point
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='pick_square.py', description=__doc__.split('\n')[0].strip('`: '))
-    parser.add_argument('--config', default=DEFAULT_CONFIG, help='pick parameters YAML (default %(default)s)')
     parser.add_argument('--mode', choices=pick.MODES)
-    parser.add_argument('--arm', dest='side', choices=['left', 'right'])
     parser.add_argument('--shape', help='target shape (triangle, square, pentagon, hexagon)')
     parser.add_argument('--side-length', type=float, help='block side (m)')
     parser.add_argument('--colour', '--color', dest='colour', help='block colour (a name in config/vision.yaml)')
     parser.add_argument('--step-fraction', type=float, help='PBVS step fraction (thesis: 0.35 or 0.12)')
     parser.add_argument('--start-pose', help='start pose name in config/start_poses.yaml (down, angled)')
-    parser.add_argument('--table-top-z', type=float, help='table top height in base (m)')
     parser.add_argument('--estimator', choices=['sqp', 'ippe', 'sqpnp'])
-    parser.add_argument('--camera-calibration', metavar='YAML',
-                        help="camera calibration to use instead of the robot's camera_info")
-    parser.add_argument('--speed-ratio', type=float, help='arm speed ratio (0, 1]')
     parser.add_argument('--place', metavar='X,Y', help='place the block at this table position (base, m)')
-    parser.add_argument('--cycles', type=int, help='pick (and place) this many blocks, one after the other; '
-                        'after the first, wait for each next block (blocks at the place position are done)')
-    parser.add_argument('--result-json', metavar='FILE', help='write the result JSON here')
-    parser.add_argument('--output-dir', metavar='DIR', help='write result.json, final_view.png and errors.png here')
-    parser.add_argument('--save-views', action='store_true', default=None,
-                        help='save every annotated camera view as a PNG in OUTPUT_DIR/views')
-    parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
+    cli.add_session_arguments(parser, DEFAULT_CONFIG, cycles=True)
     return parser.parse_args(argv)
 
 
-COMMAND_LINE_KEYS = ('mode', 'side', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'table_top_z',
-                     'estimator', 'speed_ratio', 'camera_calibration', 'cycles', 'save_views')
+TASK_KEYS = ('mode', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'estimator')
 
 
 def build_config(args, private_params=None):
-    """(PickConfig, SessionConfig): defaults <- the YAML <- ``private_params`` (the ``~name`` ROS parameters)
-    <- the command line; ParameterError (a ValueError) names the bad key."""
-    overrides = {name: getattr(args, name) for name in COMMAND_LINE_KEYS}
+    """(PickConfig, SessionConfig): defaults <- the YAML <- ``private_params`` (the ``~name`` ROS parameters,
+    read from the parameter server when None) <- the command line; ParameterError names the bad key."""
+    extra = {}
     if args.place:
         try:
-            overrides['place_xy'] = [float(v) for v in args.place.split(',')]
+            extra['place_xy'] = [float(v) for v in args.place.split(',')]
         except ValueError:
             raise ParameterError('--place', 'expected X,Y in metres, got %r' % args.place) from None
-    config, session_config = load_configs(pick.PickConfig, args.config, private_params, overrides)
+    config, session_config = cli.read_configs(pick.PickConfig, args, TASK_KEYS, extra, private_params)
     if config.block_height - config.grasp_depth < session_config.tip_margin:
         raise ParameterError('grasp_depth', 'leaves the gripper tip closer to the table than tip_margin (got %r)'
                              % config.grasp_depth)
     return config, session_config
 
 
-def private_parameters(names):
-    """The private ROS parameters (``~name``) that are set, of ``names``."""
-    return {name: rospy.get_param('~' + name) for name in names if rospy.has_param('~' + name)}
+def build_run(args):
+    """(PickConfig, SessionConfig, VisionConfig) of the command line ``args``; ParameterError names a bad key."""
+    config, session_config = build_config(args)
+    vision_config = vision.VisionConfig.from_yaml(args.vision_config)
+    if config.colour not in vision_config.colour_names():
+        raise ParameterError('colour', '%r is not in the vision configuration (known: %s)'
+                             % (config.colour, ', '.join(vision_config.colour_names())))
+    return config, session_config, vision_config
 
 
 def main(argv=None):
     args = parse_args(rospy.myargv()[1:] if argv is None else argv)
     rospy.init_node('pick_square', disable_signals=False)
-    try:
-        private = private_parameters(field_names(pick.PickConfig) + field_names(SessionConfig))
-        config, session_config = build_config(args, private)
-        vision_config = vision.VisionConfig.from_yaml(args.vision_config)
-        if config.colour not in vision_config.colour_names():
-            raise ParameterError('colour', '%r is not in the vision configuration (known: %s)'
-                                 % (config.colour, ', '.join(vision_config.colour_names())))
-    except (OSError, ValueError, TypeError) as error:
-        rospy.logerr('pick_square: bad configuration: %s' % error)
+    configs = cli.configure('pick_square', lambda: build_run(args))
+    if configs is None:
         return 2
-    rospy.loginfo('pick_square: %s' % json.dumps({**config.as_dict(), **session_config.as_dict()}))
+    config, session_config, vision_config = configs
     application = PickApplication(config, session_config, vision_config, args.output_dir, args.result_json)
     started = time.monotonic()
     results = application.run()

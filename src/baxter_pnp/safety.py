@@ -47,12 +47,16 @@ def _vector(values, name, size=None):
     return array
 
 
+MAX_TABLE_TILT = np.radians(10.0)     # rad: a table plane tilted more is a wrong calibration, not a table
+
+
 @dataclass(frozen=True)
 class SafetyLimits:
     """The numbers the safety checks use (base frame, metres, radians).
 
     - ``joint_lower``, ``joint_upper`` (7,): joint limits (rad); ``velocity_limits`` (7,) rad/s or None.
-    - ``table_top_z``: height of the table top in base (m); ``tip_margin``: the gripper tip
+    - ``table_top_z``: height of the table top in base (m), or ``table_plane`` (a ``models.Plane`` in base, e.g.
+      a calibrated, slightly tilted table: it replaces ``table_top_z``); ``tip_margin``: the gripper tip
       (``<side>_gripper`` origin) must stay this far above it; ``hand_margin``: same for the hand and
       the hand camera origins.
     - ``workspace_min``, ``workspace_max`` (3,): the box (base, m) the tip, hand and camera stay in.
@@ -64,6 +68,7 @@ class SafetyLimits:
     joint_upper: tuple
     velocity_limits: tuple = None
     table_top_z: float = -0.15
+    table_plane: object = None
     tip_margin: float = 0.01
     hand_margin: float = 0.05
     workspace_min: tuple = (0.15, -1.2, -0.5)
@@ -90,6 +95,9 @@ class SafetyLimits:
             raise ValueError('workspace_min and workspace_max must be 3 values each with min < max')
         object.__setattr__(self, 'workspace_min', box_min)
         object.__setattr__(self, 'workspace_max', box_max)
+        if self.table_plane is not None and not self.table_plane.tilt() <= MAX_TABLE_TILT:
+            raise ValueError('table_plane is tilted %.1f deg: more than %.0f deg is no table top'
+                             % (np.degrees(self.table_plane.tilt()), np.degrees(MAX_TABLE_TILT)))
         for name in ('tip_margin', 'hand_margin'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must be >= 0 (m)')
@@ -227,12 +235,17 @@ class ArmSafety:
         """{frame: origin (3,) in base} of the tip, hand and camera at angles ``q``."""
         return {frame: self._fk(q, frame)[:3, 3] for frame in (self.tip_frame,) + self.body_frames}
 
+    def table_z_at(self, position):
+        """Height (m, base) of the table top under ``position`` (x, y, ...)."""
+        plane = self.limits.table_plane
+        return self.limits.table_top_z if plane is None else plane.z_at(position[:2])
+
     def _violation(self, frame, position):
         """(depth (m) by which ``position`` of ``frame`` breaks the clearance/box rules, reason) - depth 0 if none."""
         margin = self.limits.tip_margin if frame == self.tip_frame else self.limits.hand_margin
-        floor = self.limits.table_top_z + margin
-        depths = [(floor - position[2],
-                   f'would be at z = {position[2]:.3f} m, below the table top {self.limits.table_top_z:.3f} m '
+        table_z = self.table_z_at(position)
+        depths = [(table_z + margin - position[2],
+                   f'would be at z = {position[2]:.3f} m, below the table top {table_z:.3f} m '
                    f'+ margin {margin:.3f} m')]
         for axis, name in enumerate('xyz'):
             low, high = self.limits.workspace_min[axis], self.limits.workspace_max[axis]

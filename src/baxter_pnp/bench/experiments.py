@@ -201,9 +201,9 @@ def connect_rig():
     session = RobotSession(session_config, log_name='depth')
     session.connect()
     query = BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
-                       session_config.table_top_z)
+                       session.table)
     return DepthRig(session, Motion(session), Eye(session, vision.VisionConfig.from_yaml(), query),
-                    target.TargetRules.of(config, session_config.table_top_z))
+                    target.TargetRules.of(config, session.table))
 
 
 def sample_depth(rig, condition, pose_name, count, T_base_block_true):

@@ -12,7 +12,8 @@ Shaped like Rethink's ``baxter_interface`` (reference/baxter_interfaces.md §2-8
   commands (every arm command first passes ``safety``, a ``baxter_pnp.safety.ArmSafety``, and is logged);
 - ``gripper``: ``Gripper(side)``, the electric gripper's command protocol (calibrate, open, close, state);
 - ``camera``: ``HandCamera(side)``, opens the hand camera and delivers BGR ``Frame``s with their ``CameraModel``;
-- ``hand_eye``: ``hand_eye_transform(side)``, the camera mount from tf (or the URDF if tf does not answer).
+- ``hand_eye``: ``hand_eye_transform(side)``, the camera mount from tf (or the URDF if tf does not answer);
+  ``hand_eye_from_calibration``: from a hand-eye calibration.
 
 Only the SDK's topics and services are used, so the same code drives a real Baxter and the fake one.
 Frames: ``base`` for poses (``T_base_gripper`` = the ``<side>_gripper`` pose in ``base``, 4x4, metres),
@@ -33,7 +34,7 @@ _EXPORTS = {
     'limb': ('Limb', 'ArmJointState', 'EndpointState', 'ENDPOINT_HISTORY'),
     'gripper': ('Gripper',),
     'camera': ('HandCamera', 'Frame', 'CAMERA_INFO_GRACE'),
-    'hand_eye': ('hand_eye_transform', 'HandEye'),
+    'hand_eye': ('hand_eye_transform', 'hand_eye_from_calibration', 'HandEye'),
 }
 _MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
 __all__ = sorted(_MODULE_OF)

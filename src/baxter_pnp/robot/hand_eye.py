@@ -1,4 +1,5 @@
-"""``hand_eye_transform``: the hand camera's mount on the arm, from tf (or the URDF if tf does not answer).
+"""The hand camera's mount on the arm: ``hand_eye_transform`` from tf (or the URDF if tf does not answer),
+``hand_eye_from_calibration`` from a hand-eye calibration file (``baxter_pnp.hand_eye``).
 
 Frames: ``T_hand_camera`` is the ``<side>_hand_camera`` pose in ``<side>_hand``, ``T_gripper_camera``
 its pose in ``<side>_gripper`` (4x4, metres). Timeouts in wall-clock seconds.
@@ -14,7 +15,8 @@ from baxter_pnp.transforms import from_xyz_quat, invert
 
 
 class HandEye(NamedTuple):
-    """The hand camera's mount: T_hand_camera, T_gripper_camera (4x4, m) and their source ('tf' or 'urdf')."""
+    """The hand camera's mount: T_hand_camera, T_gripper_camera (4x4, m) and their source ('tf', 'urdf' or
+    'calibration <file>')."""
     T_hand_camera: np.ndarray
     T_gripper_camera: np.ndarray
     source: str
@@ -55,3 +57,22 @@ def hand_eye_transform(side, timeout=2.0, urdf_path=None):
                        invert(kinematics.fk(q, gripper)) @ T_base_camera, 'urdf')
     finally:
         kinematics.close()
+
+
+def _urdf_T_hand_gripper(side, urdf_path=None):
+    """The ``<side>_gripper`` pose in ``<side>_hand`` from the URDF (a fixed joint: any angles)."""
+    from baxter_pnp.kinematics import ArmKinematics
+    frames = sdk.arm_frames(side)
+    kinematics = ArmKinematics(side, urdf_path)
+    try:
+        q = np.clip(np.zeros(7), kinematics.lower, kinematics.upper)
+        return invert(kinematics.fk(q, frames.hand)) @ kinematics.fk(q, frames.gripper)
+    finally:
+        kinematics.close()
+
+
+def hand_eye_from_calibration(side, T_hand_camera, source, urdf_path=None):
+    """The mount ``T_hand_camera`` (4x4, m: a calibration's camera pose in ``<side>_hand``), with
+    ``T_gripper_camera`` through the URDF's fixed hand -> gripper joint."""
+    T_hand_camera = np.asarray(T_hand_camera, dtype=float)
+    return HandEye(T_hand_camera, invert(_urdf_T_hand_gripper(side, urdf_path)) @ T_hand_camera, source)

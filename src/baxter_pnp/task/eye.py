@@ -15,7 +15,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from sensor_msgs.msg import Image
 
 from baxter_pnp import perception, robot, view
-from baxter_pnp.models import table_plane_in_camera
+from baxter_pnp.models import Plane, table_plane_in_camera
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
 
@@ -36,13 +36,14 @@ class Look(NamedTuple):
 
 class BlockQuery(NamedTuple):
     """What the eye looks for: a block ``shape`` (None: any) and ``colour`` (None: any), ``side_length`` and
-    ``height`` (m), posed by ``estimator`` ('sqp' | 'ippe' | 'sqpnp') with the table plane at ``table_top_z``."""
+    ``height`` (m), posed by ``estimator`` ('sqp' | 'ippe' | 'sqpnp') on the ``table`` top (a ``models.Plane`` in
+    base, e.g. ``RobotSession.table``)."""
     shape: Optional[str]
     colour: Optional[str]
     side_length: float
     height: float
     estimator: str
-    table_top_z: float
+    table: Plane
 
 
 class Eye:
@@ -85,7 +86,7 @@ class Eye:
         frame = self.frame(after_stamp)
         T_base_gripper = session.limb.endpoint_pose_at(frame.stamp)
         T_base_camera = T_base_gripper @ session.hand_eye.T_gripper_camera
-        plane = table_plane_in_camera(T_base_camera, q.table_top_z)
+        plane = table_plane_in_camera(T_base_camera, q.table)
         observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, q.side_length,
                                                  q.height, shape=q.shape, colour=q.colour, method=q.estimator,
                                                  table_plane=plane)

@@ -80,7 +80,9 @@ class RobotSession:
 
     Attributes after ``connect``: ``enabler`` (robot.RobotEnable), ``kinematics`` (URDF ArmKinematics),
     ``safety`` (ArmSafety: table floor and limits), ``limb``, ``gripper``, ``camera`` (robot.HandCamera),
-    ``camera_override`` (a CameraModel from ``camera_calibration``, or None), ``hand_eye`` (robot.HandEye).
+    ``camera_override`` (a CameraModel from ``camera_calibration``, or None), ``hand_eye`` (robot.HandEye: from
+    ``config.hand_eye``'s calibration, else tf / the URDF), ``table`` (the table top in base, a ``models.Plane``:
+    ``config.table()``).
     ``clock`` is the current run's RunClock (:meth:`start_clock`)."""
 
     def __init__(self, config, log_name='task'):
@@ -90,6 +92,7 @@ class RobotSession:
         self.connected = False
         self.enabler = self.kinematics = self.safety = self.limb = self.gripper = None
         self.camera = self.camera_override = self.hand_eye = None
+        self.table = config.table()
 
     def connect(self):
         c = self.config
@@ -97,14 +100,23 @@ class RobotSession:
         self.enabler = robot.RobotEnable()
         self.enabler.enable()
         self.kinematics = ArmKinematics(c.side)
-        self.safety = ArmSafety.for_arm(self.kinematics, table_top_z=c.table_top_z, tip_margin=c.tip_margin)
+        rospy.loginfo('%s: table top %.4f m under the base origin, tilted %.2f deg (%s)'
+                      % (self.log_name, self.table.z_at((0.0, 0.0)), np.degrees(self.table.tilt()),
+                         'the plane of %s' % c.hand_eye if c.table_calibrated() else 'table_top_z'))
+        self.safety = ArmSafety.for_arm(self.kinematics, table_top_z=c.table_top_z, table_plane=self.table,
+                                        tip_margin=c.tip_margin)
         self.limb = robot.Limb(c.side, self.safety, max_age=c.stream_max_age)
         self.gripper = robot.Gripper(c.side, max_age=c.stream_max_age)
         self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
         if c.camera_calibration:
             self.camera_override = c.calibrated_camera()
             rospy.loginfo('%s: camera model from %s instead of camera_info' % (self.log_name, c.camera_calibration))
-        self.hand_eye = robot.hand_eye_transform(c.side)
+        if c.hand_eye:
+            calibration = c.hand_eye_calibration()
+            self.hand_eye = robot.hand_eye_from_calibration(c.side, calibration.T_parent_child,
+                                                            'calibration %s' % c.hand_eye)
+        else:
+            self.hand_eye = robot.hand_eye_transform(c.side)
         rospy.loginfo('%s: hand-eye from %s: camera at %s m from the gripper tip'
                       % (self.log_name, self.hand_eye.source,
                          np.round(self.hand_eye.T_gripper_camera[:3, 3], 4).tolist()))

@@ -8,7 +8,9 @@ from typing import List, Optional
 import yaml
 
 from baxter_pnp.camera import CameraModel, SensorWindow
+from baxter_pnp.models import Plane
 from baxter_pnp.params import ParameterError, Parameters, load_mapping
+from baxter_pnp.safety import MAX_TABLE_TILT
 
 
 @dataclass
@@ -23,6 +25,9 @@ class SessionConfig(Parameters):
                                             # camera_info; calibrated at a larger size: its centred window of the
                                             # mode's size (a hand camera's modes are windows of its sensor);
                                             # read when validated (a wrong file is a bad parameter)
+    hand_eye: Optional[str] = None          # hand-eye calibration YAML (calibrate_hand_eye.py): the camera's mount
+                                            # instead of tf / the URDF, and its table plane (if any) instead of
+                                            # table_top_z; read when validated
     speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
     table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
     tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
@@ -47,6 +52,38 @@ class SessionConfig(Parameters):
         self.require(self.max_recoveries >= 0, 'max_recoveries', 'must be >= 0')
         if self.camera_calibration is not None:     # read now: a wrong file is a bad parameter, before connecting
             self.calibrated_camera()
+        if self.hand_eye is not None:
+            self.table()
+
+    def hand_eye_calibration(self):
+        """The ``hand_eye`` file's ``hand_eye.HandEyeCalibration`` (ParameterError if unreadable or for the other
+        arm)."""
+        from baxter_pnp import hand_eye
+        try:
+            calibration = hand_eye.load_hand_eye(self.hand_eye)
+        except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
+            raise ParameterError('hand_eye', 'not a readable hand-eye calibration: %s' % error) from None
+        expected = ('%s_hand' % self.side, '%s_hand_camera' % self.side)
+        if (calibration.parent_frame, calibration.child_frame) != expected:
+            raise ParameterError('hand_eye', '%s calibrates %s -> %s, not the %s arm\'s %s -> %s'
+                                 % (self.hand_eye, calibration.parent_frame, calibration.child_frame, self.side,
+                                    *expected))
+        return calibration
+
+    def table_calibrated(self):
+        """True when the table top comes from the ``hand_eye`` calibration (it has a table plane)."""
+        return self.hand_eye is not None and self.hand_eye_calibration().table_plane is not None
+
+    def table(self):
+        """The table top in base (``models.Plane``): the ``hand_eye`` calibration's table plane when it has one,
+        else level at ``table_top_z``."""
+        if self.table_calibrated():
+            table = Plane(*self.hand_eye_calibration().table_plane)
+            if not table.tilt() <= MAX_TABLE_TILT:
+                raise ParameterError('hand_eye', "%s: the table plane is tilted %.1f deg: not a table top (was "
+                                     "the board lying flat?)" % (self.hand_eye, math.degrees(table.tilt())))
+            return table
+        return Plane.level(self.table_top_z)
 
     def calibrated_camera(self):
         """The ``camera_calibration`` file's camera for the image of ``resolution``: the file's own model, or

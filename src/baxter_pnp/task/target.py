@@ -13,6 +13,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from baxter_pnp import vision
+from baxter_pnp.models import Plane
 from baxter_pnp.transforms import raised
 
 TRACK_RADIUS = 0.05     # m: an estimate this close to the last one is the same block
@@ -25,17 +26,18 @@ class TargetRules:
     colour: str
     side_length: float
     block_height: float
-    table_top_z: float
+    table: Plane                # the table top in base
     max_residual_px: float
     max_height_error: float
     place_xy: Optional[Sequence[float]] = None
 
     @classmethod
-    def of(cls, task_config, table_top_z):
+    def of(cls, task_config, table):
         """The rules of a task config with ``shape``, ``colour``, ``side_length``, ``block_height``,
-        ``max_residual_px``, ``max_height_error`` and ``place_xy`` (e.g. ``pick.PickConfig``)."""
+        ``max_residual_px``, ``max_height_error`` and ``place_xy`` (e.g. ``pick.PickConfig``) on the ``table`` top
+        (``models.Plane`` in base)."""
         c = task_config
-        return cls(c.shape, c.colour, c.side_length, c.block_height, table_top_z, c.max_residual_px,
+        return cls(c.shape, c.colour, c.side_length, c.block_height, table, c.max_residual_px,
                    c.max_height_error, c.place_xy)
 
 
@@ -49,7 +51,7 @@ def believable(observation, T_base_camera, rules, on_table=True, placed_too=Fals
     if (not placed_too and rules.place_xy is not None
             and np.linalg.norm(position[:2] - np.asarray(rules.place_xy)) < 2 * rules.side_length):
         return False
-    expected_z = rules.table_top_z + rules.block_height
+    expected_z = rules.table.z_at(position[:2]) + rules.block_height
     return not on_table or abs(position[2] - expected_z) <= rules.max_height_error
 
 

@@ -20,7 +20,7 @@ STAMP_VENV := $(VENV)/.stamp-requirements
 GENERATED := $(ROOT)/src/baxter_pnp/_generated/baxter_core_msgs/__init__.py
 PTH := $(VENV)/lib/python3.11/site-packages/baxter_pnp.pth
 
-.PHONY: all setup test demo demo-perception bench-perception bench-render clean
+.PHONY: all setup test demo demo-perception bench-perception bench-render bench-hand-eye clean
 
 all: setup
 
@@ -64,6 +64,10 @@ bench-perception: setup
 # The fake's camera renderers side by side (ms per 640x400 frame, world-loop speed); README "Fake Baxter".
 bench-render: setup
 	$(PY) scripts/bench_render.py
+
+# Hand-eye calibration on the fake vs its ground truth, and picks with / without it; README "Calibration on the robot".
+bench-hand-eye: setup
+	$(PY) scripts/bench_hand_eye.py
 
 clean:
 	rm -rf $(ROOT)/src/baxter_pnp/_generated out .pytest_cache

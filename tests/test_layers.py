@@ -10,7 +10,8 @@ from baxter_pnp.runtime import PACKAGE_ROOT
 
 SOURCE = os.path.join(PACKAGE_ROOT, 'src', 'baxter_pnp')
 PURE = ('params', 'transforms', 'calibration', 'synthetic', 'models', 'pose', 'perception', 'servo', 'view',
-        'kinematics', 'safety', 'pick', 'vision', 'task.settings', 'task.target', 'robot.sdk')
+        'kinematics', 'safety', 'pick', 'vision', 'task.settings', 'task.target', 'robot.sdk', 'hand_eye',
+        'board_views')
 # What sim/ may import from the package: the pure cores it renders and simulates with, and the SDK's names.
 SIM_MAY_IMPORT = ('sim', 'camera', 'kinematics', 'models', 'transforms', 'runtime', 'msgs', 'ros_image',
                   'synthetic', 'params', 'robot', 'robot.sdk')
@@ -22,7 +23,8 @@ FAKE_NAMESPACE = 'fake_baxter/'    # the fake's node name: its private (~) topic
 FAKE_AND_BENCH_SCRIPTS = {'fake_baxter.py': 'sim.node', 'run_trials.py': 'bench.trials',
                           'run_experiments.py': 'bench.experiments', 'bench_perception.py': 'bench.perception_bench',
                           'demo.py': 'bench.demo', 'perception_demo.py': 'bench.perception_demo',
-                          'bench_render.py': 'bench.render_bench', 'bench_appearance.py': 'bench.appearance_stats'}
+                          'bench_render.py': 'bench.render_bench', 'bench_appearance.py': 'bench.appearance_stats',
+                          'bench_hand_eye.py': 'bench.hand_eye_bench'}
 
 
 def modules():

@@ -4,6 +4,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp.kinematics import NEUTRAL, ArmKinematics
+from baxter_pnp.models import Plane
 from baxter_pnp.safety import ArmSafety, SafetyLimits, UnsafeCommand
 from baxter_pnp.transforms import make_transform
 
@@ -97,6 +98,26 @@ def test_target_below_the_table_is_refused(safety, kinematics):
         safety.check_joint_target(q_below, q_above)
     # Lifting an arm that is already too low is allowed: every configuration of the move is higher.
     safety.check_joint_target(q_above, q_below)
+
+
+def test_a_tilted_table_plane_is_the_floor_where_the_tip_is(kinematics):
+    """A calibrated table plane (1 deg about base y, 5 mm above ``table_top_z`` under the target) replaces
+    ``table_top_z``: a tip 12 mm above the level table is 7 mm above the plane there, closer than the margin."""
+    slope = np.tan(np.radians(1.0))
+    xy = (0.7, 0.3)
+    plane = Plane(np.array([-slope, 0.0, 1.0]), 0.0)              # z = slope * x ...
+    plane = Plane(plane.normal, plane.offset + plane.normal[2] * (TABLE_Z + 0.005 - slope * xy[0]))  # ... moved
+    assert plane.z_at(xy) == pytest.approx(TABLE_Z + 0.005)
+    tilted = ArmSafety.for_arm(kinematics, table_top_z=TABLE_Z, table_plane=plane, tip_margin=0.01)
+    level = ArmSafety.for_arm(kinematics, table_top_z=TABLE_Z, tip_margin=0.01)
+    q_above = ik(kinematics, DOWN, (*xy, -0.10))
+    q_low = ik(kinematics, DOWN, (*xy, TABLE_Z + 0.012), seed=q_above)
+    level.check_joint_target(q_low, q_above)
+    with pytest.raises(UnsafeCommand, match='below the table top %.3f m' % (TABLE_Z + 0.005)):
+        tilted.check_joint_target(q_low, q_above)
+    with pytest.raises(ValueError, match='tilted 20.0 deg'):
+        SafetyLimits(kinematics.lower, kinematics.upper, table_plane=Plane((np.sin(np.radians(20)), 0,
+                                                                            np.cos(np.radians(20))), 0.0))
 
 
 def test_path_through_the_table_is_refused(safety, kinematics):

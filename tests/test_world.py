@@ -1,5 +1,6 @@
-"""SimWorld: arm motion, physical grasping, gripper state, camera rendering, range sensor, ground truth."""
+"""SimWorld: arm motion, physical grasping, gripper state, camera rendering, range sensor, ground truth, chessboard."""
 import dataclasses
+import os
 
 import cv2
 import numpy as np
@@ -7,14 +8,23 @@ import pybullet as p
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp.camera import load_default_camera
+from baxter_pnp.calibration import board_object_points, find_board_corners
+from baxter_pnp.camera import CameraModel, load_default_camera
 from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.models import model_for
 from baxter_pnp.kinematics import load_start_poses
+from baxter_pnp.perception import observe_blocks
+from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.sim import appearance
+from baxter_pnp.sim.appearance import AppearanceConfig
+from baxter_pnp.sim.cameras import sensor_model, sensor_window
+from baxter_pnp.sim.render import RendererUnavailable
 from baxter_pnp.sim.scene import CameraError, Scene, load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, transform_points
+from baxter_pnp.vision import VisionConfig
 
+SCENES = os.path.join(PACKAGE_ROOT, 'config', 'scenes')
 LEFT = ['left_s0', 'left_s1', 'left_e0', 'left_e1', 'left_w0', 'left_w1', 'left_w2']
 VELOCITY_LIMITS = np.array([1.5, 1.5, 1.5, 1.5, 4.0, 4.0, 4.0])
 
@@ -352,3 +362,135 @@ def test_respawn_needs_the_block_on_the_table_not_on_another_block():
     assert counts[-1] == 1 and 0.5 < counts.index(1) * world.time_step < 0.8
     np.testing.assert_allclose(world.object_poses()[0][:3, 3], [0.62, -0.05, top_z + 0.02], atol=1e-3)
     world.close()
+
+
+# ------------------------------------------------------------------------------------------------ chessboard
+@pytest.fixture(scope='module')
+def sensor_camera():
+    """The fake's left hand camera at 640x400, as it publishes it (a window of the 1280x800 sensor, distorted)."""
+    return sensor_model('left_hand_camera').windowed(sensor_window(640, 400))
+
+
+def hand_eye_scene(name='hand_eye', **changes):
+    """config/scenes/<name>.yaml (hand_eye: a 9x6 board, 25 mm squares, a block beyond it, a camera error;
+    hand_eye_focal: the same and a 2 % longer focal length), with ``changes``."""
+    return dataclasses.replace(load_scene(os.path.join(SCENES, f'{name}.yaml')), **changes)
+
+
+def make_world(scene, renderer='auto'):
+    """SimWorld of ``scene``; the test skips where the EGL renderer asked for cannot run."""
+    try:
+        return SimWorld(scene, renderer=renderer)
+    except RendererUnavailable as error:
+        pytest.skip(f'EGL unavailable here: {error}')
+
+
+def view_board_tilted(world, kinematics, angle=np.radians(25), closer=0.04):
+    """Teleport the left arm: its camera turned ``angle`` about base +x through the board's centre from the start
+    pose (it swings toward base -y and looks back at the board), then ``closer`` (m) along its optical axis
+    (0.40 m from the board's centre)."""
+    board = world.scene.boards[0]
+    centre = make_transform(None, [*board.xy, world.scene.table.top_z])
+    T_base_camera = (centre @ make_transform(Rotation.from_euler('x', angle)) @ invert(centre)
+                     @ world.link_pose('left_hand_camera') @ make_transform(None, [0.0, 0.0, closer]))
+    q = kinematics.ik(T_base_camera, frame='left_hand_camera', seed=left_angles(world))
+    assert q is not None
+    world.set_arm_positions('left', dict(zip(LEFT, q)))
+
+
+def true_corners_px(world, camera):
+    """(N, 2) px of the board's inner corners, ``calibration.board_object_points`` order mapped by the scene's
+    ``T_base_board``, projected by the camera that renders the image: ``camera`` moved and scaled by
+    ``scene.camera_error``."""
+    scene = world.scene
+    (board,) = scene.boards
+    error = scene.camera_error
+    K = camera.K.copy()
+    K[0, 0] *= error.focal_scale
+    K[1, 1] *= error.focal_scale
+    true_camera = CameraModel(camera.width, camera.height, K, camera.D)
+    T_camera_board = invert(world.link_pose('left_hand_camera') @ error.T_published_true) @ \
+        board.T_base_board(scene.table.top_z)
+    return true_camera.project(transform_points(T_camera_board, board_object_points(board.pattern, board.square)))
+
+
+def corner_errors_px(image, expected):
+    """Distances (px) of the sub-pixel corners ``find_board_corners`` finds in ``image`` from ``expected``,
+    matched in the order OpenCV returns them (asserted: the board's own, first inner corner first)."""
+    found = find_board_corners(image, (9, 6))
+    assert found is not None, 'no 9x6 chessboard found'
+    errors = np.linalg.norm(found.reshape(-1, 2) - expected, axis=1)
+    assert errors.max() < 2.0, 'corners in another order than the board frame\'s'
+    return errors
+
+
+@pytest.mark.parametrize('renderer', ['egl', 'tiny'])
+@pytest.mark.parametrize('scene_name, view', [('hand_eye', 'down'), ('hand_eye', 'tilted'), ('hand_eye_focal', 'down')])
+def test_board_corners_are_found_where_the_true_camera_projects_them(sensor_camera, kinematics, renderer,
+                                                                     scene_name, view):
+    """The hand camera sees the board as OpenCV sees a real one: ``find_board_corners`` on the fake's image lands
+    on the board's true corners (``Chessboard.T_base_board``) projected by the true camera (the scene's camera
+    error included: 7.8 mm and 2.1 deg off the published one, and a 2 % longer focal length in hand_eye_focal),
+    in the board frame's order."""
+    world = make_world(hand_eye_scene(scene_name), renderer)
+    try:
+        if view == 'tilted':
+            view_board_tilted(world, kinematics)
+        expected = true_corners_px(world, sensor_camera)
+        assert np.all((expected > 20) & (expected < [620, 380]))              # the whole grid in view
+        errors = corner_errors_px(world.render_camera('left_hand_camera', sensor_camera, np.random.default_rng(0)),
+                                  expected)
+        # measured mean 0.13 px (down, focal too) and 0.14 px (tilted), max 0.25-0.32 px, both renderers; without the
+        # scene's supersampling (aliased edges) 0.36 px (test_supersampling_makes_the_corners_sub_pixel_exact)
+        assert errors.mean() < 0.2 and errors.max() < 0.5
+    finally:
+        world.close()
+
+
+def test_supersampling_makes_the_corners_sub_pixel_exact(sensor_camera):
+    """One sample a pixel gives stair-stepped edges and corners only good to a third of a pixel; 2 x 2 samples
+    average like a real sensor's pixel and bring them to a tenth."""
+    means = {}
+    for samples in (1, 2):
+        world = make_world(hand_eye_scene(supersampling=samples))
+        image = world.render_camera('left_hand_camera', sensor_camera)
+        means[samples] = corner_errors_px(image, true_corners_px(world, sensor_camera)).mean()
+        world.close()
+    assert means[1] > 0.3 and means[2] < 0.15, means         # measured 0.36 and 0.13 px
+
+
+@pytest.mark.parametrize('look', ['clean', 'baxter'])
+def test_the_board_is_no_block_and_is_found_under_both_looks(sensor_camera, look):
+    """Black and white, no colour key: the pick's perception finds no block on the board alone (nor in the grey
+    'baxter' look's darker, noisier, vignetted image), and the corners are still found."""
+    world = make_world(hand_eye_scene(objects=(), appearance=AppearanceConfig.from_dict(appearance.expand(look))))
+    try:
+        image = world.render_camera('left_hand_camera', sensor_camera, np.random.default_rng(1))
+        assert observe_blocks(image, sensor_camera, VisionConfig(), side=0.04) == []
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        inside = cv2.fillConvexPoly(np.zeros_like(gray), cv2.convexHull(
+            true_corners_px(world, sensor_camera).astype(np.int32)), 1).astype(bool)
+        dark, light = np.percentile(gray[inside], [10, 90])
+        assert dark < 20 and light > 150, (dark, light)       # matte black squares on white paper
+        assert corner_errors_px(image, true_corners_px(world, sensor_camera)).mean() < 0.2    # measured 0.13
+    finally:
+        world.close()
+
+
+def test_the_board_is_visual_only(sensor_camera):
+    """Nothing but the table, the blocks and the robot has a collision shape: a block standing on the board
+    rests on the table top (a 0.5 mm board under it would lift it), and the ground truth lists blocks only."""
+    scene = hand_eye_scene()
+    world = make_world(scene)
+    try:
+        (board,) = scene.boards
+        world.place_object(0, board.xy, 0.2)                                   # onto the board's centre
+        world.step(240)
+        (T_base_block,) = world.object_poses()
+        np.testing.assert_allclose(T_base_block[:3, 3], [*board.xy, scene.table.top_z + 0.02], atol=1e-4)
+        colliding = {i for i in range(p.getNumBodies(physicsClientId=world._client))
+                     if p.getCollisionShapeData(i, -1, physicsClientId=world._client)}
+        assert colliding == {world._table, *world._blocks}                    # the robot's are on its links
+        assert p.getNumBodies(physicsClientId=world._client) == 2 + len(world._blocks) + 2     # + paper, squares
+    finally:
+        world.close()

@@ -15,7 +15,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from baxter_pnp.runtime import PACKAGE_ROOT
-from baxter_pnp.transforms import from_xyz_quat
+from baxter_pnp.transforms import from_xyz_quat, invert
 
 DEFAULT_URDF = os.path.join(PACKAGE_ROOT, 'urdf', 'baxter.urdf')
 START_POSES_YAML = os.path.join(PACKAGE_ROOT, 'config', 'start_poses.yaml')
@@ -133,6 +133,12 @@ class ArmKinematics(PyBulletClientOwner):
         link = self._link(frame or f'{self.side}_gripper')
         self._set(q)
         return link_pose(self._robot, link, self._client)
+
+    def relative(self, parent, child):
+        """T_parent_child (4x4, m) of two frames rigidly joined beyond the arm's joints (e.g. ``<side>_hand`` ->
+        ``<side>_hand_camera``: the URDF's camera mount): the same at any joint angles."""
+        q = np.clip(np.zeros(7), self.lower, self.upper)
+        return invert(self.fk(q, parent)) @ self.fk(q, child)
 
     def jacobian(self, q, frame=None):
         """(6, 7) geometric Jacobian [linear; angular] of ``frame``'s origin in base: d[v; w] / d(q dot)."""

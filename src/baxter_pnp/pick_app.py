@@ -411,9 +411,7 @@ def build_run(args):
 
 
 def main(argv=None):
-    args = parse_args(rospy.myargv()[1:] if argv is None else argv)
-    rospy.init_node('pick_square', disable_signals=False)
-    configs = cli.configure('pick_square', lambda: build_run(args))
+    args, configs = cli.start('pick_square', argv, parse_args, build_run)
     if configs is None:
         return 2
     config, session_config, vision_config = configs

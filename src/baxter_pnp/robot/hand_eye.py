@@ -11,7 +11,7 @@ import rospy
 
 from baxter_pnp.robot import sdk
 from baxter_pnp.robot.topics import wait_until
-from baxter_pnp.transforms import from_xyz_quat, invert
+from baxter_pnp.transforms import from_xyz_quat
 
 
 class HandEye(NamedTuple):
@@ -51,22 +51,7 @@ def hand_eye_transform(side, timeout=2.0, urdf_path=None):
     from baxter_pnp.kinematics import ArmKinematics
     kinematics = ArmKinematics(side, urdf_path)
     try:
-        q = np.clip(np.zeros(7), kinematics.lower, kinematics.upper)
-        T_base_camera = kinematics.fk(q, camera)
-        return HandEye(invert(kinematics.fk(q, hand)) @ T_base_camera,
-                       invert(kinematics.fk(q, gripper)) @ T_base_camera, 'urdf')
-    finally:
-        kinematics.close()
-
-
-def _urdf_T_hand_gripper(side, urdf_path=None):
-    """The ``<side>_gripper`` pose in ``<side>_hand`` from the URDF (a fixed joint: any angles)."""
-    from baxter_pnp.kinematics import ArmKinematics
-    frames = sdk.arm_frames(side)
-    kinematics = ArmKinematics(side, urdf_path)
-    try:
-        q = np.clip(np.zeros(7), kinematics.lower, kinematics.upper)
-        return invert(kinematics.fk(q, frames.hand)) @ kinematics.fk(q, frames.gripper)
+        return HandEye(kinematics.relative(hand, camera), kinematics.relative(gripper, camera), 'urdf')
     finally:
         kinematics.close()
 
@@ -74,5 +59,12 @@ def _urdf_T_hand_gripper(side, urdf_path=None):
 def hand_eye_from_calibration(side, T_hand_camera, source, urdf_path=None):
     """The mount ``T_hand_camera`` (4x4, m: a calibration's camera pose in ``<side>_hand``), with
     ``T_gripper_camera`` through the URDF's fixed hand -> gripper joint."""
+    from baxter_pnp.kinematics import ArmKinematics
+    frames = sdk.arm_frames(side)
+    kinematics = ArmKinematics(side, urdf_path)
+    try:
+        T_gripper_hand = kinematics.relative(frames.gripper, frames.hand)
+    finally:
+        kinematics.close()
     T_hand_camera = np.asarray(T_hand_camera, dtype=float)
-    return HandEye(T_hand_camera, invert(_urdf_T_hand_gripper(side, urdf_path)) @ T_hand_camera, source)
+    return HandEye(T_hand_camera, T_gripper_hand @ T_hand_camera, source)

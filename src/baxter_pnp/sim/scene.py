@@ -1,26 +1,35 @@
-"""Scene description of the fake Baxter: table, blocks, start pose, camera error, faults (YAML, validated).
+"""Scene description of the fake Baxter: table, blocks, chessboards, start pose, camera error, faults (YAML, validated).
 
 Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/ARCHITECTURE.md)::
 
     table: {top_z: -0.15, center: [0.75, 0.0], size: [0.9, 1.5]}
     objects:
       - {shape: square, side: 0.04, height: 0.02, color: [0.1, 0.7, 0.1], xy: [0.70, 0.25], yaw: 0.4}
+      - {shape: chessboard, pattern: [9, 6], square: 0.025, xy: [0.53, 0.25], yaw: -1.5}
     start: down      # 'down' | 'angled' | 'neutral' (config/start_poses.yaml) | {left_s0: ..., ..., left_w2: ...}
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
     faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
     respawn: {poses: [[0.62, 0.30, 0.5], [0.70, 0.18, -1.0]], delay: 2.0, object: 0}   # (x m, y m, yaw rad)
     appearance: clean    # 'clean' | 'baxter' | {preset: baxter, exposure: 0.5, ...}: sim.appearance
+    supersampling: 1     # camera samples a pixel along each axis (2: anti-aliased edges, n^2 the drawing cost)
 
-``table``, ``start``, ``camera_error``, ``faults``, ``respawn`` and ``appearance`` (and each of their keys, except
-``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the defaults; no
-faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required, and
+``table``, ``start``, ``camera_error``, ``faults``, ``respawn``, ``appearance`` and ``supersampling`` (and each of
+their keys, except ``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the
+defaults; no faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required
+(a chessboard's ``pattern``, ``square`` and ``xy``; its ``yaw``, ``border`` and ``thickness`` are optional), and
 blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
 ``params``: each dataclass below from its mapping, then its ``validate``).
+
+``objects`` entries with ``shape: chessboard`` are printed boards lying on the table (``Chessboard``), not blocks:
+``Scene.from_dict`` puts them in ``Scene.boards`` and the blocks, in their order, in ``Scene.objects``. **Block
+indices count blocks only** (``respawn.object``, ``faults.nudge.object``, ``SimWorld.object_poses`` and the
+fake's ground-truth topic ``/fake_baxter/object_poses``); error keys name the entry's place in the YAML list.
 """
 import contextlib
 import dataclasses
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Tuple, Union
 
@@ -38,6 +47,8 @@ from baxter_pnp.transforms import from_xyz_rpy
 
 DEFAULT_SCENE_YAML = os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'default.yaml')
 RESPAWN_DELAY = 2.0             # s (simulated): default wait of a respawn (see Respawn)
+BOARD_THICKNESS = 0.0005        # m: default thickness of a chessboard (a printed sheet on the table)
+MAX_SUPERSAMPLING = 4           # camera samples a pixel along each axis (the render costs about n^2 times as much)
 START_POSE_NAMES = ('down', 'angled', 'neutral')       # config/start_poses.yaml
 
 
@@ -46,12 +57,37 @@ class SceneError(ParameterError):
 
 
 @contextlib.contextmanager
-def _scene_errors():
-    """Every ParameterError raised inside re-raised as a SceneError (same key and message)."""
+def _scene_errors(positions=None):
+    """Every ParameterError raised inside re-raised as a SceneError (same key and message); with ``positions``
+    ({'objects' | 'boards': [index in the YAML ``objects`` list, ...]}), ``objects[i]`` and ``boards[i]`` in
+    the key and message renamed ``objects[<YAML index>]``."""
     try:
         yield
     except ParameterError as error:
-        raise SceneError(error.key, error.problem) from None
+        if positions is None:
+            raise SceneError(error.key, error.problem) from None
+        raise SceneError(_yaml_indices(error.key, positions), _yaml_indices(error.problem, positions)) from None
+
+
+def _yaml_indices(text, positions):
+    """``text`` with each ``objects[i]`` / ``boards[i]`` replaced by ``objects[<its index in the YAML list>]``."""
+    return re.sub(r'\b(objects|boards)\[(\d+)\]',
+                  lambda match: f'objects[{positions[match.group(1)][int(match.group(2))]}]', text)
+
+
+def _split_boards(values):
+    """(``values`` with its ``objects`` list split into ``objects`` (blocks) and ``boards`` (entries with ``shape:
+    chessboard``), positions: {'objects' | 'boards': [index in the YAML list, ...]}); unchanged if ``objects`` is
+    not a list (the parameter check names it)."""
+    entries = values.get('objects', [])
+    if not isinstance(entries, list):
+        return values, None
+    positions = {'objects': [], 'boards': []}
+    for i, entry in enumerate(entries):
+        is_board = isinstance(entry, dict) and entry.get('shape') == 'chessboard'
+        positions['boards' if is_board else 'objects'].append(i)
+    split = {key: [entries[i] for i in indices] for key, indices in positions.items()}
+    return {**values, **split}, positions
 
 
 @dataclass(frozen=True)
@@ -81,7 +117,8 @@ class SceneObject(Parameters):
     yaw: float = 0.0
 
     def validate(self):
-        self.require(self.shape in SHAPES, 'shape', f'must be one of {sorted(SHAPES, key=SHAPES.get)}')
+        self.require(self.shape in SHAPES, 'shape',
+                     f"must be one of {sorted(SHAPES, key=SHAPES.get)} or 'chessboard'")
         self.require_positive('side', 'height')
         self.require(all(0.0 <= c <= 1.0 for c in self.color), 'color', 'RGB components must be in 0..1')
 
@@ -94,6 +131,67 @@ class SceneObject(Parameters):
         """(n, 2) vertices (m, base x-y) of the block's outline on the table."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return self.model.vertices[:, :2] @ np.array([[c, s], [-s, c]]) + self.xy
+
+
+@dataclass(frozen=True)
+class Chessboard(Parameters):
+    """A printed chessboard lying flat on the table, seen by the cameras only (no collision shape: the arm, the
+    fingers and the blocks pass through it; blocks may stand on it). ``pattern`` (columns, rows) of **inner**
+    corners, so (columns + 1) x (rows + 1) squares of ``square`` m, black and white, the one before the first
+    corner black (OpenCV's pattern), inside a white ``border`` (m, default one square); the board is ``thickness``
+    m thick (its printed top that far above the table top); the inner-corner grid is centred above ``xy`` (m)
+    and rotated ``yaw`` (rad) about base +z (see ``T_base_board``)."""
+    pattern: Tuple[int, int]
+    square: float
+    xy: Tuple[float, float]
+    yaw: float = 0.0
+    border: Optional[float] = None
+    thickness: float = BOARD_THICKNESS
+    shape: str = 'chessboard'
+
+    def __post_init__(self):
+        if self.border is None:
+            object.__setattr__(self, 'border', self.square)
+
+    def validate(self):
+        self.require(self.shape == 'chessboard', 'shape', "must be 'chessboard'")
+        for i, count in enumerate(self.pattern):
+            self.require(count >= 2, f'pattern[{i}]', 'must be at least 2 inner corners', count)
+        self.require_positive('square', 'thickness')
+        self.require_non_negative('border')
+
+    @property
+    def size(self):
+        """(length along the board's x, along its y) of the whole board, border included (m)."""
+        return tuple((count + 1) * self.square + 2 * self.border for count in self.pattern)
+
+    def T_base_board(self, table_top_z):
+        """4x4 pose (m) of the board frame in ``base``, the frame of ``calibration.board_object_points``: origin
+        at the first inner corner on the printed top (``thickness`` above ``table_top_z``), x along a row of
+        corners (rotated ``yaw`` from base +x), y along the columns to the next row, z into the table (-base z),
+        as OpenCV's object points have it: x right, y down, z away from a camera that looks at the board."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        R = np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])      # Rz(yaw) Rx(pi)
+        centre = np.array([*self.xy, table_top_z + self.thickness])
+        first_corner = centre - R[:, :2] @ ((np.array(self.pattern) - 1) * self.square / 2)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, first_corner
+        return T
+
+    def black_squares(self):
+        """(K, 4, 2) corners (m, board frame x-y, in order around each square) of the black squares: square
+        (a, b), a = 0..columns, b = 0..rows, spans x in [(a-1) s, a s] and y in [(b-1) s, b s] and is black when
+        a + b is even (square (0, 0), before the first inner corner, is black)."""
+        unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+        return np.array([(unit + [a - 1, b - 1]) * self.square
+                         for b in range(self.pattern[1] + 1) for a in range(self.pattern[0] + 1) if (a + b) % 2 == 0])
+
+    def footprint(self):
+        """(4, 2) corners (m, base x-y) of the whole board, border included, on the table."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        half = np.array(self.size) / 2
+        outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
+        return outline @ np.array([[c, s], [-s, c]]) + self.xy
 
 
 @dataclass(frozen=True)
@@ -139,19 +237,25 @@ _StartJoints = dataclasses.make_dataclass('_StartJoints', [(name, float) for nam
 
 @dataclass(frozen=True)
 class Scene(Parameters):
-    """A validated scene. ``start`` is a start-pose name or a dict of the 7 left-arm joint angles (rad);
-    ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None. ``validate``
-    checks what lies between the sections: blocks on the table and apart, the respawn poses, the objects
-    that ``respawn`` and ``faults.nudge`` name."""
+    """A validated scene. ``objects``: the blocks; ``boards``: the chessboards (``objects`` entries with ``shape:
+    chessboard`` in YAML, see ``from_dict``). ``start`` is a start-pose name or a dict of the 7 left-arm joint
+    angles (rad); ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None.
+    ``validate`` checks what lies between the sections: blocks on the table and apart, boards wholly on the
+    table and apart (blocks may stand on them), the respawn poses, the blocks that ``respawn`` and
+    ``faults.nudge`` name (block indices count blocks only)."""
     table: Table = field(default_factory=Table)
     objects: Tuple[SceneObject, ...] = ()
+    boards: Tuple[Chessboard, ...] = ()
     start: Union[str, Dict[str, float]] = 'down'
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
     respawn: Optional[Respawn] = None
     appearance: AppearanceConfig = field(default_factory=AppearanceConfig)
+    supersampling: int = 1
 
     def validate(self):
+        self.require(1 <= self.supersampling <= MAX_SUPERSAMPLING, 'supersampling',
+                     f'must be an integer from 1 to {MAX_SUPERSAMPLING}')
         for i, obj in enumerate(self.objects):
             if not self.table.contains(obj.xy):
                 raise ParameterError(f'objects[{i}].xy', f'{list(obj.xy)} is not on the table')
@@ -159,6 +263,13 @@ class Scene(Parameters):
             for i in range(j):
                 if _overlap(self.objects[i], self.objects[j]):
                     raise ParameterError(f'objects[{j}].xy', f'the block overlaps objects[{i}] on the table')
+        for j, board in enumerate(self.boards):
+            if not all(self.table.contains(corner) for corner in board.footprint()):
+                raise ParameterError(f'boards[{j}].xy', f'the {board.size[0]:.3f} x {board.size[1]:.3f} m board '
+                                                        f'(border included) does not lie wholly on the table')
+            for i in range(j):
+                if _overlap(self.boards[i], board):
+                    raise ParameterError(f'boards[{j}].xy', f'the board overlaps boards[{i}] on the table')
         if isinstance(self.start, str):
             self.require(self.start in START_POSE_NAMES, 'start',
                          "must be 'down', 'angled', 'neutral' or a map of the 7 left-arm joints")
@@ -168,14 +279,15 @@ class Scene(Parameters):
             self._validate_respawn()
         nudge = self.faults.nudge
         if nudge is not None and nudge.object >= len(self.objects):
-            raise ParameterError('faults.nudge.object',
-                                 f'{nudge.object} but the scene has {len(self.objects)} object(s)')
+            raise ParameterError('faults.nudge.object', f'{nudge.object} but the scene has {len(self.objects)} '
+                                                        'object(s) (blocks: boards do not count)')
 
     def _validate_respawn(self):
         """Every respawn pose puts the block on the table, clear of the other blocks' scene positions."""
         index = self.respawn.object
         if index >= len(self.objects):
-            raise ParameterError('respawn.object', f'{index} but the scene has {len(self.objects)} object(s)')
+            raise ParameterError('respawn.object', f'{index} but the scene has {len(self.objects)} object(s) '
+                                                   '(blocks: boards do not count)')
         for k, (x, y, yaw) in enumerate(self.respawn.poses):
             moved = dataclasses.replace(self.objects[index], xy=(x, y), yaw=yaw)
             if not self.table.contains(moved.xy):
@@ -186,10 +298,16 @@ class Scene(Parameters):
 
     @classmethod
     def from_dict(cls, values, where=''):
-        """Scene from a dictionary (parsed YAML); ``SceneError`` naming the bad key."""
-        if isinstance(values, dict) and 'appearance' in values:
-            values = {**values, 'appearance': appearance.expand(values['appearance'])}
-        with _scene_errors():
+        """Scene from a dictionary (parsed YAML), its ``objects`` list split into blocks (``objects``) and
+        chessboards (``boards``); ``SceneError`` naming the bad key (``objects[i]``: the i-th entry of the list)."""
+        positions = None
+        if isinstance(values, dict):
+            if 'boards' in values:
+                raise SceneError('boards', "unknown key: chessboards go in 'objects', with 'shape: chessboard'")
+            if 'appearance' in values:
+                values = {**values, 'appearance': appearance.expand(values['appearance'])}
+            values, positions = _split_boards(values)
+        with _scene_errors(positions):
             return super().from_dict(values, where)
 
     def with_faults(self, faults):
@@ -226,6 +344,7 @@ def load_faults(path):
 
 
 def _overlap(a, b):
-    """True if the outlines of scene objects ``a`` and ``b`` on the table overlap (touching is fine)."""
+    """True if the outlines (``footprint()``) of blocks or boards ``a`` and ``b`` on the table overlap (touching is
+    fine)."""
     area, _ = cv2.intersectConvexConvex(a.footprint().astype(np.float32), b.footprint().astype(np.float32))
     return area > 1e-7                                         # m^2 (0.1 mm^2)

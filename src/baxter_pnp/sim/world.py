@@ -19,6 +19,11 @@ blocks: finger-block collisions are off until the reopened fingers are clear of 
 that slip (once the fingers grip, they let go of the block the same way: it stays on the table when they
 rise, while the gripper holds the opening it gripped at and keeps reporting ``gripping`` until it opens).
 
+Chessboards (``scene.boards``) are visual only, like the occluder: a white box (the board and its border,
+``thickness`` thick on the table) and one body of flat black quads on its top; nothing collides with them,
+so the physics, the range sensor and the blocks (``object_poses``, block indices) are those of the scene
+without them.
+
 ``scene.respawn`` (soak tests) is acted out here too: a block that was lifted and has been put down and
 let go is moved to the next of its respawn poses (``respawns`` counts the moves).
 """
@@ -36,7 +41,7 @@ from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, a
 from baxter_pnp.sim import appearance
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
 from baxter_pnp.sim.render import make_renderer
-from baxter_pnp.transforms import from_xyz_quat, make_transform
+from baxter_pnp.transforms import from_xyz_quat, make_transform, to_xyz_quat
 
 ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
 ARM_ACCELERATION = 3.0          # rad/s^2 of the position set-point profile
@@ -53,6 +58,8 @@ BLOCK_MARGIN = 0.001            # m, Bullet collision margin of the blocks' conv
 BLOCK_DENSITY = 780.0           # kg/m^3 (wood: a 40 x 40 x 20 mm square weighs 25 g)
 FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
 TABLE_THICKNESS = 0.04          # m
+BOARD_COLOR = {'paper': (0.95, 0.95, 0.95), 'ink': (0.05, 0.05, 0.05)}   # chessboard, matte (no specular)
+BOARD_INK_LIFT = 2e-5           # m: the black squares above the white board's top (one depth, no z-fighting)
 RESPAWN_LIFT = 0.03             # m: a block counts as lifted once its underside is this far above the table top
 RESPAWN_TIP_CLEARANCE = 0.08    # m: every gripper tip must be this far above the block's top before a respawn
 RESPAWN_STILL_SPEED = 0.01      # m/s: a block whose points all move slower than this is at rest (resting
@@ -88,6 +95,7 @@ class SimWorld(PyBulletClientOwner):
         self._blocks = [self._make_block(obj) for obj in scene.objects]
         if scene.faults.occluder is not None:
             self._make_occluder(scene.faults.occluder)
+        board_meshes = dict(self._make_board(board) for board in scene.boards)     # {black squares' body: mesh}
         self._nudge_start = None     # (position, orientation) of the nudged block when its push began
         # Fault times count from boot, or (time_origin 'camera_open') from start_fault_clock(): never before.
         self.fault_time_origin = 0.0 if scene.faults.time_origin == 'boot' else math.inf
@@ -95,8 +103,9 @@ class SimWorld(PyBulletClientOwner):
         self.set_arm_positions('right', dict(zip(arm_joint_names('right'), NEUTRAL)))
         self._ideal_cameras = {}     # (true camera) -> ideal pinhole camera rendered by PyBullet
         self._renderer = make_renderer(renderer, self._client, {
-            body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
-            for body, obj in zip(self._blocks, scene.objects)}, textured=scene.appearance.table_texture > 0)
+            **{body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
+               for body, obj in zip(self._blocks, scene.objects)},
+            **board_meshes}, textured=scene.appearance.table_texture > 0)
         self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance
         self._respawner = None if scene.respawn is None else _Respawner(self, scene.respawn)
 
@@ -170,6 +179,30 @@ class SimWorld(PyBulletClientOwner):
         centre = [*occluder.xy, self.scene.table.top_z + occluder.height + OCCLUDER_THICKNESS / 2]
         return p.createMultiBody(0.0, -1, visual, centre, p.getQuaternionFromEuler([0, 0, occluder.yaw]),
                                  physicsClientId=self._client)
+
+    def _make_board(self, board):
+        """A ``scene.Chessboard``, visual only: a white box of the whole board and one mesh body of its black
+        squares, ``BOARD_INK_LIFT`` above the box in the board frame (``board.T_base_board``). Returns (the
+        black squares' body, its mesh (vertices, normals, indices) for the renderer)."""
+        T_base_board = board.T_base_board(self.scene.table.top_z)
+        _, quaternion = to_xyz_quat(T_base_board)
+        centre = T_base_board @ [*((np.array(board.pattern) - 1) * board.square / 2), board.thickness / 2, 1.0]
+        paper = p.createVisualShape(p.GEOM_BOX, halfExtents=[*np.divide(board.size, 2), board.thickness / 2],
+                                    rgbaColor=[*BOARD_COLOR['paper'], 1.0], specularColor=[0.0, 0.0, 0.0],
+                                    physicsClientId=self._client)
+        p.createMultiBody(0.0, -1, paper, centre[:3].tolist(), list(quaternion), physicsClientId=self._client)
+        squares = board.black_squares()                                   # (K, 4, 2), board frame
+        vertices = np.concatenate([squares, np.full(squares.shape[:2] + (1,), -BOARD_INK_LIFT)], axis=2)
+        vertices = vertices.reshape(-1, 3)
+        normals = np.tile([0.0, 0.0, -1.0], (len(vertices), 1))          # board -z: up, out of the table
+        # two triangles a square, counter-clockwise seen from above the board (from where the normal points)
+        indices = (4 * np.arange(len(squares))[:, None] + [0, 2, 1, 0, 3, 2]).ravel()
+        ink = p.createVisualShape(p.GEOM_MESH, vertices=vertices.tolist(), normals=normals.tolist(),
+                                  indices=indices.tolist(), rgbaColor=[*BOARD_COLOR['ink'], 1.0],
+                                  specularColor=[0.0, 0.0, 0.0], physicsClientId=self._client)
+        body = p.createMultiBody(0.0, -1, ink, T_base_board[:3, 3].tolist(), list(quaternion),
+                                 physicsClientId=self._client)
+        return body, (vertices, normals, indices)
 
     def _place(self, body, height, xy, yaw):
         com = [xy[0], xy[1], self.scene.table.top_z + height / 2]
@@ -307,7 +340,8 @@ class SimWorld(PyBulletClientOwner):
         """uint8 BGR (H, W, 3) image of ``camera`` (a ``CameraModel``) mounted at ``link``'s optical frame.
 
         The true camera is the published one perturbed by ``scene.camera_error`` (mount offset, focal
-        scale). It is rendered as an ideal pinhole with a margin (``renderer_name``), warped with
+        scale). It is rendered as an ideal pinhole with a margin (``renderer_name``; with ``scene.supersampling``
+        n > 1 at n times the resolution, then each n x n block averaged), warped with
         the true camera's distortion (``CameraModel.rendering_maps``), then formed as ``scene.appearance``
         says (``sim.appearance.form_image``: exposure, white balance, vignetting; its intensities multiplied
         by ``gain``, a lighting change, 0 = black, nothing rendered; noise drawn from ``rng``, none if None).
@@ -333,7 +367,12 @@ class SimWorld(PyBulletClientOwner):
         true_camera = CameraModel(camera.width, camera.height, K_true, camera.D)
         ideal = self._ideal_camera(true_camera)
         T_base_camera = self.link_pose(link) @ error.T_published_true
-        bgr = self._renderer.render(T_base_camera, ideal)
+        n = self.scene.supersampling
+        if n == 1:
+            bgr = self._renderer.render(T_base_camera, ideal)
+        else:          # n x n samples a pixel, averaged: each pixel integrates the light over its area
+            bgr = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height)),
+                             (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
         return cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ideal_camera(self, true_camera):

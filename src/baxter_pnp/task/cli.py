@@ -58,9 +58,18 @@ def read_configs(task_class, args, task_keys, extra_overrides=None, private_para
     return load_configs(task_class, args.config, private_params, overrides)
 
 
+def start(name, argv, parse_args, build):
+    """The node ``name`` started on the command line ``argv`` (``rospy.myargv`` when None): ``(args, configs)``
+    with ``configs = build(args)``, or ``(args, None)`` after logging the error when a parameter or file is bad
+    (the script then exits 2: nothing reached the robot)."""
+    args = parse_args(rospy.myargv()[1:] if argv is None else argv)
+    rospy.init_node(name, disable_signals=False)
+    return args, configure(name, lambda: build(args))
+
+
 def configure(name, build):
     """``build()`` (returning the run's configs), or None after logging the error when a parameter or file is
-    bad (the script then exits 2: nothing reached the robot)."""
+    bad."""
     try:
         configs = build()
     except CONFIG_ERRORS as error:

@@ -4,8 +4,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+import yaml
 
-from baxter_pnp.sim.appearance import AppearanceConfig, expand, form_image, table_texture, vignetting_gain
+from baxter_pnp.sim import appearance
+from baxter_pnp.sim.appearance import (PRESETS, AppearanceConfig, describe, expand, form_image, random_appearance,
+                                       table_texture, vignetting_gain)
 from baxter_pnp.sim.cameras import sensor_model, sensor_window
 from baxter_pnp.sim.scene import Scene, SceneError, load_scene
 from baxter_pnp.sim.world import SimWorld
@@ -27,6 +30,36 @@ def test_presets_overrides_and_errors_as_a_scene_key():
                        ({'vignetting': 1.5}, 'appearance.vignetting'), (3, 'appearance')):
         with pytest.raises(SceneError, match=key):
             Scene.from_dict({'objects': objects, 'appearance': value})
+
+
+def test_random_looks_are_valid_scenes_reproducible_per_seed_and_span_clean_to_baxter_and_beyond():
+    looks = [random_appearance(np.random.default_rng(seed)) for seed in range(300)]
+    assert random_appearance(np.random.default_rng(7)) == looks[7] != looks[8]
+    objects = [{'shape': 'square', 'side': 0.04, 'color': [0.1, 0.7, 0.1], 'xy': [0.7, 0.25]}]
+    for look in looks:
+        assert yaml.safe_load(yaml.safe_dump(look)) == look                    # plain types: a scene file holds it
+        config = Scene.from_dict({'objects': objects, 'appearance': look}).appearance    # validated
+        assert config.table_color == tuple(look['table_color']) and config.white_balance[1] == 1.0
+    assert 'exposure=' in describe(looks[0]) and describe('baxter') == 'baxter'
+    clean, baxter = AppearanceConfig(), AppearanceConfig.from_dict(expand('baxter'))
+    grey = [np.mean(look['table_color']) for look in looks]
+    tint = [np.ptp(look['table_color']) for look in looks]
+    assert max(tint) <= 2 * appearance.TABLE_TINT + 0.002
+    drawn = {'table grey': (grey, appearance.TABLE_GREY_RANGE, clean.table_color[0], baxter.table_color[0]),
+             'white balance R': ([look['white_balance'][0] for look in looks], appearance.WHITE_BALANCE_R_RANGE,
+                                 clean.white_balance[0], baxter.white_balance[0]),
+             'white balance B': ([look['white_balance'][2] for look in looks], appearance.WHITE_BALANCE_B_RANGE,
+                                 clean.white_balance[2], baxter.white_balance[2])}     # both 1: a cast either way
+    for key, bounds in (('table_texture', appearance.TABLE_TEXTURE_RANGE), ('exposure', appearance.EXPOSURE_RANGE),
+                        ('vignetting', appearance.VIGNETTING_RANGE), ('noise_std', appearance.NOISE_STD_RANGE),
+                        ('colour_noise_std', appearance.COLOUR_NOISE_STD_RANGE)):
+        drawn[key] = ([look[key] for look in looks], bounds, getattr(clean, key), getattr(baxter, key))
+    for key, (values, (low, high), *presets) in drawn.items():
+        width = high - low
+        assert low - 0.02 <= min(values) < low + 0.05 * width and high - 0.05 * width < max(values) <= high + 0.02, key
+        assert low <= min(presets) and max(presets) <= high, key                  # spans clean..baxter
+        assert min(values) < min(presets) or max(values) > max(presets), key     # and a bit beyond
+    assert PRESETS['baxter']['table_color'][0] > appearance.TABLE_GREY_RANGE[0]   # darker tables than baxter's too
 
 
 def test_image_formation_exposure_white_balance_vignetting_and_noise():

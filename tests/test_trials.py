@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from baxter_pnp.bench import ground_truth, soak, trial_scenes, trials
 from baxter_pnp.models import model_for
 from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.sim.appearance import AppearanceConfig, expand
 from baxter_pnp.sim.launcher import RosMaster, free_port, run_script
 from baxter_pnp.sim.scene import Scene, SceneError, Table
 from baxter_pnp.sim.world import SimWorld
@@ -225,6 +226,47 @@ def test_rows_carry_their_conditions_and_are_summarised_per_condition(tmp_path, 
     assert f'pbvs [faults: {faulty}; distractors: 1' in printed and '| 1/3 (33 %)' in printed
     with open(tmp_path / 'summary.json') as f:
         assert len(json.load(f)['per_mode_and_condition']) == 2
+
+
+
+def test_appearance_option_puts_a_look_per_seed_into_the_scene_and_the_records(tmp_path):
+    args = trials.parse_args(['--appearance', 'random'])
+    assert args.appearance == 'random' and trials.parse_args([]).appearance == 'clean'
+    for bad in (['--appearance', 'sunny'], ['--soak', '3', '--appearance', 'random']):
+        with pytest.raises(SystemExit):
+            trials.parse_args(bad)
+    scenes = {seed: trial_scenes.random_scene(np.random.default_rng(seed), 'down',
+                                              appearance=trial_scenes.trial_appearance(args.appearance, seed))
+              for seed in (11, 12)}
+    for seed, scene in scenes.items():
+        loaded = yaml.safe_load(yaml.safe_dump(scene, default_flow_style=None, sort_keys=False))   # as run_trial
+        assert isinstance(loaded['appearance'], dict) and 'exposure' in loaded['appearance']
+        assert Scene.from_dict(loaded).appearance == AppearanceConfig.from_dict(expand(loaded['appearance']))
+        assert loaded['appearance'] == trial_scenes.trial_appearance('random', seed)     # the seed fixes the look
+    assert scenes[11]['appearance'] != scenes[12]['appearance']
+    clean = trial_scenes.random_scene(np.random.default_rng(11), 'down',
+                                      appearance=trial_scenes.trial_appearance('clean', 11))
+    assert 'appearance' not in clean and clean['objects'] == scenes[11]['objects']   # same placements as before
+    assert trials.scene_conditions(clean)['appearance'] == 'clean'
+    baxter = trial_scenes.random_scene(np.random.default_rng(11), 'down', appearance='baxter')
+    assert trials.scene_conditions(baxter)['appearance'] == 'baxter'
+    rows = []
+    for k, scene in enumerate([scenes[11], scenes[12], clean]):
+        rows.append({'mode': 'pbvs', 'start_pose': 'down', 'trial': k, 'verified': True, 'app_success': True,
+                     'failure_reason': None, 'centring_mm': 1.0, 'centring_x_mm': 1.0, 'centring_y_mm': 0.0,
+                     'pre_close_offset_mm': 1.0, 'time_s': 8.0, 'wall_s': 20.0, 'timed_out': False,
+                     **trials.scene_conditions(scene)})
+    assert rows[0]['appearance'] == 'random' and rows[0]['appearance_look'] != rows[1]['appearance_look']
+    assert 'vignetting=%.3g' % scenes[11]['appearance']['vignetting'] in rows[0]['appearance_look']
+    trials.write_csv(rows, tmp_path / 'trials.csv')
+    again = trials.read_csv(tmp_path / 'trials.csv')
+    assert [(r['appearance'], r['appearance_look']) for r in again] == [
+        (r['appearance'], r['appearance_look']) for r in rows]
+    assert list(trials.summarise(again, by_condition=True)) == [
+        'pbvs [faults: none; distractors: 0; appearance: random]', 'pbvs [faults: none; distractors: 0]']
+    trials.report(again, str(tmp_path), 'test')
+    with open(tmp_path / 'summary.json') as f:
+        assert json.load(f)['looks'] == {'down 0': rows[0]['appearance_look'], 'down 1': rows[1]['appearance_look']}
 
 
 # ============================================================================================ soak (pure parts)

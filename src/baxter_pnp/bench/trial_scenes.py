@@ -18,6 +18,7 @@ from baxter_pnp import pick, view
 from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
+from baxter_pnp.sim.appearance import random_appearance
 from baxter_pnp.sim.scene import Scene, Table, load_faults
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, raised, transform_points
@@ -30,6 +31,8 @@ COLOURS_RGB = {'green': (0.1, 0.7, 0.1), 'red': (0.8, 0.1, 0.1), 'blue': (0.1, 0
                'yellow': (0.85, 0.8, 0.1)}   # all inside the HSV ranges of config/vision.yaml
 DISTRACTOR_MIN_DISTANCE = 0.08        # m between block centres (target and distractors)
 HAND_GREY_LEVEL = 120                 # rendered pixels darker than this are the hand (table ~210, floor ~255)
+APPEARANCES = ('clean', 'baxter', 'random')   # run_trials.py --appearance
+APPEARANCE_STREAM = 1                 # the random look's generator: (trial seed, this), apart from the placements
 
 
 @functools.lru_cache(maxsize=None)
@@ -166,7 +169,7 @@ def scene_dict(objects, start_pose, table, **extra):
 
 
 def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_colour_distractor=False,
-                 margin_px=20.0, table=None, faults=None):
+                 margin_px=20.0, table=None, faults=None, appearance=None):
     """A random scene dict (``sim/scene.py`` schema) with one green square the application can pick.
 
     The target (``objects[0]``): drawn by :func:`draw_placement` (whole top face in view from
@@ -174,7 +177,9 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     square, same sizes, also in view) stand at least 8 cm from every other block; with
     ``same_colour_distractor`` one more block has the target's colour but another shape (triangle,
     pentagon or hexagon; the last object). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
-    schema), none if None. ``rng`` is a ``numpy.random.Generator``.
+    schema), none if None. ``appearance``: the scene's ``appearance:`` value (a preset name or a mapping,
+    ``sim/appearance.py``; see :func:`trial_appearance`), none (clean) if None. ``rng`` is a
+    ``numpy.random.Generator``.
     """
     table = table or Table()
     objects, placed = [], []
@@ -193,7 +198,22 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     if same_colour_distractor:
         same_colour = [s for s in SHAPES if s != TARGET[0]]
         add(same_colour[rng.integers(len(same_colour))], TARGET[1])
-    return scene_dict(objects, start_pose, table, **({} if faults is None else {'faults': faults}))
+    extra = {} if faults is None else {'faults': faults}
+    if appearance is not None:
+        extra['appearance'] = appearance
+    return scene_dict(objects, start_pose, table, **extra)
+
+
+def trial_appearance(choice, seed):
+    """The ``appearance:`` value of a trial's scene for ``run_trials.py --appearance choice``: None for
+    ``clean`` (no key, the scenes as before), ``'baxter'``, or for ``random`` a look drawn by
+    ``sim.appearance.random_appearance`` from the trial's ``seed`` (its own generator stream, so the same seed
+    gives the same look and the same placements as with any other choice)."""
+    if choice not in APPEARANCES:
+        raise ValueError(f'appearance must be one of {APPEARANCES}, not {choice!r}')
+    if choice == 'random':
+        return random_appearance(np.random.default_rng([seed, APPEARANCE_STREAM]))
+    return None if choice == 'clean' else choice
 
 
 def load_faults_mapping(path):

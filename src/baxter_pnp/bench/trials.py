@@ -4,10 +4,12 @@
 pose (``trial_scenes.random_scene``), runs the unmodified pick application on each scene in each mode
 against a fresh fake Baxter (:func:`run_trial`), scores every run with the simulator's ground truth and
 prints a per-mode table (:func:`summarise`, :func:`format_table`); ``trials.csv``, ``summary.json`` and the
-plots go to ``--out``. ``--faults FILE`` and ``--distractor-same-colour`` run a batch under faults; every row
-records its conditions (:func:`condition`). ``--soak N`` runs N pick-and-place cycles in one application run
-against one fake that respawns the block (``soak.run_soak``), scoring each cycle with the ground truth and
-watching both processes' memory. See docs/trials.md.
+plots go to ``--out``. ``--faults FILE`` and ``--distractor-same-colour`` run a batch under faults;
+``--appearance clean|baxter|random`` sets the fake camera's look (``random``: a look per scene drawn from its
+seed, ``trial_scenes.trial_appearance``); every row records its conditions (:func:`condition`) and its look.
+``--soak N`` runs N pick-and-place cycles in one application run against one fake that respawns the block
+(``soak.run_soak``), scoring each cycle with the ground truth and watching both processes' memory. See
+docs/trials.md.
 
 Ground truth (``/fake_baxter/object_poses``, the gripper pose of ``/robot/limb/left/endpoint_state``:
 ``ground_truth.GroundTruthMonitor``) is read by the runner only; the application never sees it. Scores
@@ -35,16 +37,18 @@ from baxter_pnp.bench.ground_truth import (LIFT_THRESHOLD, GroundTruthMonitor, b
                                            pre_close_sample, write_ground_truth)
 from baxter_pnp.bench.records import format_number, percentile, write_rows
 from baxter_pnp.bench.soak import SOAK_PLACE_XY, soak_main
-from baxter_pnp.bench.trial_scenes import load_faults_mapping, random_scene
+from baxter_pnp.bench.trial_scenes import APPEARANCES, load_faults_mapping, random_scene, trial_appearance
+from baxter_pnp.sim.appearance import describe
 from baxter_pnp.sim.scene import Scene, SceneError
 
 MODES = pick.MODES
 START_POSES = ('down', 'angled')
 PLACE_TOLERANCE = 0.01          # m: a placed block must end this close to the requested position
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
-              'same_colour_distractor', 'faults', 'app_success', 'failure_reason', 'verified', 'lifted', 'rise_mm',
-              'centring_mm', 'centring_x_mm', 'centring_y_mm', 'pre_close_offset_mm', 'place_error_mm', 'time_s',
-              'steps', 'grasp_attempts', 'final_error_mm_est', 'wall_s', 'returncode', 'timed_out', 'trial_dir')
+              'same_colour_distractor', 'faults', 'appearance', 'appearance_look', 'app_success', 'failure_reason',
+              'verified', 'lifted', 'rise_mm', 'centring_mm', 'centring_x_mm', 'centring_y_mm', 'pre_close_offset_mm',
+              'place_error_mm', 'time_s', 'steps', 'grasp_attempts', 'final_error_mm_est', 'wall_s', 'returncode',
+              'timed_out', 'trial_dir')
 
 
 # ============================================================================================ scoring (pure)
@@ -86,10 +90,13 @@ def failure_label(row):
 
 def condition(row):
     """The conditions a row ran under, as one label: its faults (``Faults.summary()``, ``none`` for a clean
-    run; rows of CSVs written before the column count as ``none``) and its distractors, e.g.
-    ``faults: camera.drop_probability=0.2, camera.latency=0.1; distractors: 1 (1 of the target's colour)``."""
+    run; rows of CSVs written before the column count as ``none``), its distractors and, unless clean, its
+    appearance (``baxter`` or ``random``, not the random look itself), e.g. ``faults:
+    camera.drop_probability=0.2, camera.latency=0.1; distractors: 1 (1 of the target's colour); appearance: random``."""
     same = ' (1 of the target\'s colour)' if row.get('same_colour_distractor') else ''
-    return f"faults: {row.get('faults') or 'none'}; distractors: {row.get('distractors') or 0}{same}"
+    look = row.get('appearance') or 'clean'
+    return (f"faults: {row.get('faults') or 'none'}; distractors: {row.get('distractors') or 0}{same}"
+            + ('' if look == 'clean' else f'; appearance: {look}'))
 
 
 def summarise(rows, by_start_pose=False, by_condition=False):
@@ -189,6 +196,19 @@ def plot_results(rows, out_dir):
 
 # ============================================================================================ runs
 
+def scene_conditions(scene):
+    """The row fields a generated scene dict fixes besides its target: distractors (count),
+    same_colour_distractor, faults (``Faults.summary()``), appearance (``clean``, ``baxter``, or ``random`` for
+    a mapping) and appearance_look (a mapping's ``sim.appearance.describe`` label, None for a preset)."""
+    target, look = scene['objects'][0], scene.get('appearance', 'clean')
+    return {'distractors': len(scene['objects']) - 1,
+            'same_colour_distractor': any(o['color'] == target['color'] and o['shape'] != target['shape']
+                                          for o in scene['objects'][1:]),
+            'faults': Scene.from_dict(scene).faults.summary(),
+            'appearance': 'random' if isinstance(look, dict) else look,
+            'appearance_look': describe(look) if isinstance(look, dict) else None}
+
+
 def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=300.0, seed=0, trial=0,
               place_xy=None):
     """One full pick (and place at ``place_xy``, base x, y in m, if given) on a fresh fake Baxter, scored
@@ -244,10 +264,7 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
                   'centring_y_mm': None, 'pre_close_offset_mm': None}
     row = {'mode': mode, 'start_pose': start_pose, 'trial': trial, 'seed': seed,
            'side_mm': round(1000 * target['side'], 2), 'yaw_deg': round(math.degrees(target['yaw']), 2),
-           'x_m': target['xy'][0], 'y_m': target['xy'][1], 'distractors': len(scene['objects']) - 1,
-           'same_colour_distractor': any(o['color'] == target['color'] and o['shape'] != target['shape']
-                                         for o in scene['objects'][1:]),
-           'faults': Scene.from_dict(scene).faults.summary(),
+           'x_m': target['xy'][0], 'y_m': target['xy'][1], **scene_conditions(scene),
            'app_success': None if result is None else bool(result['success']),
            'failure_reason': error if result is None else result['failure_reason'],
            'time_s': None if result is None else result['time_s'],
@@ -270,6 +287,7 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
 
 FIELD_TYPES = {'trial': int, 'seed': int, 'steps': int, 'grasp_attempts': int, 'returncode': int, 'distractors': int,
                'mode': str, 'start_pose': str, 'failure_reason': str, 'trial_dir': str, 'faults': str,
+               'appearance': str, 'appearance_look': str,
                'same_colour_distractor': 'bool', 'app_success': 'bool', 'verified': 'bool', 'lifted': 'bool',
                'timed_out': 'bool'}
 
@@ -308,6 +326,9 @@ def parse_args(argv):
                         help="one more block per scene of the target's colour but not a square")
     parser.add_argument('--faults', metavar='FILE', help="YAML file with a 'faults:' key (as fake_baxter.py "
                         "--faults, docs/fake_baxter.md): the faults of every scene")
+    parser.add_argument('--appearance', choices=APPEARANCES, default='clean',
+                        help="the fake camera's look (docs/fake_baxter.md \"Appearance\"): a preset for every "
+                             "scene, or random: a look per scene drawn from its seed (default %(default)s)")
     parser.add_argument('--timeout', type=float, default=300.0,
                         help='wall seconds per trial, or per soak cycle (default %(default)s)')
     parser.add_argument('--place', metavar='X,Y', type=lambda text: [float(v) for v in text.split(',')],
@@ -324,8 +345,8 @@ def parse_args(argv):
             parser.error('--soak needs at least 2 cycles')
         if args.mode == 'all' or args.start_pose == 'both':
             parser.error('--soak runs one mode from one start pose')
-        if args.distractors or args.distractor_same_colour or args.from_csv:
-            parser.error('--soak takes no distractors and no --from-csv')
+        if args.distractors or args.distractor_same_colour or args.from_csv or args.appearance != 'clean':
+            parser.error('--soak takes no distractors, no --appearance and no --from-csv')
         args.mode, args.start_pose = args.mode or 'pbvs', args.start_pose or 'down'
         args.place = args.place or list(SOAK_PLACE_XY)
     else:
@@ -366,10 +387,12 @@ def main(argv=None):
         for trial in range(args.trials):
             scene_seed = args.seed * 100000 + START_POSES.index(start_pose) * 10000 + trial
             scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors,
-                                 same_colour_distractor=args.distractor_same_colour, faults=faults)
+                                 same_colour_distractor=args.distractor_same_colour, faults=faults,
+                                 appearance=trial_appearance(args.appearance, scene_seed))
             plan += [(start_pose, trial, scene_seed, scene, mode) for mode in modes]
     rows = []
-    print(f'{len(plan)} runs ({args.trials} scenes x {len(start_poses)} start poses x {len(modes)} modes) -> {out}',
+    print(f'{len(plan)} runs ({args.trials} scenes x {len(start_poses)} start poses x {len(modes)} modes, '
+          f'appearance {args.appearance}) -> {out}',
           flush=True)
     with RosMaster(log_dir=os.path.join(out, 'ros_log')) as master, master.environment():
         rospy.init_node('run_trials', anonymous=True, disable_signals=True)
@@ -391,12 +414,15 @@ def main(argv=None):
 
 def report(rows, out, command, args=None):
     """Print the tables (per mode, per mode and start pose, and per mode and :func:`condition` when the rows
-    ran under more than one); write ``summary.json`` and the plots in ``out``."""
+    ran under more than one); write ``summary.json`` (with ``looks``: 'start_pose trial' -> the random look,
+    when there are any) and the plots in ``out``."""
     per_mode, per_start_pose = summarise(rows), summarise(rows, by_start_pose=True)
     per_condition = summarise(rows, by_condition=True)
+    looks = {f"{r['start_pose']} {r['trial']}": r['appearance_look'] for r in rows if r.get('appearance_look')}
     with open(os.path.join(out, 'summary.json'), 'w') as f:
         json.dump({'command': command, 'args': args, 'per_mode': per_mode,
-                   'per_mode_and_start_pose': per_start_pose, 'per_mode_and_condition': per_condition}, f, indent=1)
+                   'per_mode_and_start_pose': per_start_pose, 'per_mode_and_condition': per_condition,
+                   **({'looks': looks} if looks else {})}, f, indent=1)
     plot_results(rows, out)
     print(f'\n{command}\n\n{format_table(per_mode)}\n\n{format_table(per_start_pose)}')
     if len({condition(row) for row in rows}) > 1:

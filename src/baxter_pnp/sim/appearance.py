@@ -4,8 +4,9 @@
 channel); ``appearance: baxter`` is measured on real Baxter hand-camera frames (``../shared/real/baxter_hand_a``,
 ``baxter_hand_b``; ``bench/appearance_stats.py`` prints real and rendered statistics side by side): a grey table
 in dim light, vignetting, a slight colour cast, noise in every channel. A mapping overrides a preset's keys:
-``appearance: {preset: baxter, exposure: 0.4}``. Pure (numpy, OpenCV): the world renders, then ``form_image`` turns the render into the camera's
-image.
+``appearance: {preset: baxter, exposure: 0.4}``. ``random_appearance`` draws a look for domain randomisation
+(``run_trials.py --appearance random``). Pure (numpy, OpenCV): the world renders, then ``form_image`` turns the
+render into the camera's image.
 """
 import functools
 from dataclasses import dataclass
@@ -67,6 +68,48 @@ def expand(value):
         return value
     preset = value.get('preset', 'clean')
     return {**PRESETS.get(preset, {}), **value}
+
+
+# Ranges of random_appearance (uniform draws), each spanning clean..baxter and a bit beyond. The baxter values
+# were measured on the 35 real hand-camera frames (docs/fake_baxter.md "Appearance"): table L* 25-36 at the image
+# median, corners at 0.27-0.75 of the centre (medians 0.45, 0.65), grey's R/G 0.83-0.99 and B/G 0.93-1.10,
+# noise 0.9-1.6 grey levels per channel.
+TABLE_GREY_RANGE = (0.35, 0.90)          # table_color level, RGB 0..1: clean 0.86, baxter 0.42
+TABLE_TINT = 0.02                        # +- per channel around the grey level (clean's blue is 0.02 low)
+TABLE_TEXTURE_RANGE = (0.0, 0.15)        # relative speckle contrast: clean 0, baxter 0.12
+EXPOSURE_RANGE = (0.6, 1.1)              # clean 1, baxter 0.85
+WHITE_BALANCE_R_RANGE = (0.86, 1.04)     # red gain (green fixed at 1): clean 1, baxter 0.94, real R/G 0.83-0.99
+WHITE_BALANCE_B_RANGE = (0.92, 1.10)     # blue gain: clean and baxter 1, real B/G 0.93-1.10
+VIGNETTING_RANGE = (0.4, 1.0)            # corner / centre brightness: clean 1, baxter 0.5, real 0.27-0.75
+NOISE_STD_RANGE = (0.0, 1.5)             # grey levels common to the channels: clean 0, baxter 0.9
+COLOUR_NOISE_STD_RANGE = (0.5, 2.5)      # grey levels per channel: clean 2, baxter 0.7
+
+
+def random_appearance(rng):
+    """A random look: an ``appearance:`` mapping (every key but ``preset``; plain floats and lists, rounded to
+    0.001, so it survives YAML) drawn uniformly from the ``*_RANGE`` constants with ``rng`` (a
+    ``numpy.random.Generator``); the same generator state gives the same look."""
+    def draw(bounds):
+        return round(float(rng.uniform(*bounds)), 3)
+    grey = draw(TABLE_GREY_RANGE)
+    table = [round(min(1.0, max(0.0, grey + float(rng.uniform(-TABLE_TINT, TABLE_TINT)))), 3) for _ in range(3)]
+    return {'table_color': table, 'table_texture': draw(TABLE_TEXTURE_RANGE), 'exposure': draw(EXPOSURE_RANGE),
+            'white_balance': [draw(WHITE_BALANCE_R_RANGE), 1.0, draw(WHITE_BALANCE_B_RANGE)],
+            'vignetting': draw(VIGNETTING_RANGE), 'noise_std': draw(NOISE_STD_RANGE),
+            'colour_noise_std': draw(COLOUR_NOISE_STD_RANGE)}
+
+
+def describe(value):
+    """One-line label of a scene's ``appearance`` value: a preset name as it is, a mapping as ``key=value``
+    pairs (sequences joined by '/', 3 significant digits), e.g. ``exposure=0.7 vignetting=0.55``."""
+    if not isinstance(value, dict):
+        return str(value)
+
+    def text(v):
+        if isinstance(v, (list, tuple)):
+            return '/'.join(text(x) for x in v)
+        return '%.3g' % v if isinstance(v, float) else str(v)
+    return ' '.join(f'{key}={text(v)}' for key, v in value.items())
 
 
 def table_texture(config, size=1024, seed=0):

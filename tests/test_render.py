@@ -1,5 +1,6 @@
 """Camera renderers (sim.render): OpenGL through EGL draws what PyBullet's TinyRenderer draws, follows the scene,
-costs a fraction of it, and gives way to TinyRenderer where EGL cannot run or a shape is textured.
+costs a fraction of it (also for the ``baxter`` look's textured table), and gives way to TinyRenderer where EGL
+cannot run or a shape is one it cannot draw.
 
 Images are compared pixel by pixel (mean absolute difference in grey levels, BGR) and by the centroid of the
 green block's top face (px). The EGL parts skip, with the reason, on a machine where EGL cannot start.
@@ -16,6 +17,7 @@ import pytest
 
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.sim import render
+from baxter_pnp.sim.appearance import AppearanceConfig, expand, table_texture
 from baxter_pnp.sim.cameras import sensor_model, sensor_window
 from baxter_pnp.sim.launcher import FakeBaxterProcess
 from baxter_pnp.sim.scene import load_scene
@@ -29,7 +31,7 @@ FALLBACK_LOG = 'camera renderer: EGL not used'
 def egl_problem():
     """Why EGL cannot run here, or '' if it can."""
     try:
-        render._shared_context()
+        render.egl.shared_context()
     except render.RendererUnavailable as error:
         return str(error)
     return ''
@@ -105,6 +107,35 @@ def test_egl_draws_the_hand_camera_as_tinyrenderer_does_for_a_tenth_of_the_cpu(c
 
 
 @needs_egl
+@pytest.mark.parametrize('start', ['down', 'angled'])
+def test_egl_draws_the_baxter_look_textured_table_as_tinyrenderer_does(camera, start, monkeypatch):
+    """``appearance: baxter`` (the table a speckle texture): 'auto' picks EGL, which samples the texture as
+    TinyRenderer does (PyBullet's box texture coordinates, the image flipped, nearest texel), for a fraction of
+    its CPU. Whole noise-free camera images (the look's exposure, white balance and vignetting)."""
+    monkeypatch.delenv(render.RENDERER_ENV, raising=False)
+    look = AppearanceConfig.from_dict(expand('baxter'))
+    scene = dataclasses.replace(load_scene(), start=start, appearance=look)
+    worlds = {kind: SimWorld(scene, renderer=kind) for kind in ('tiny', 'auto')}
+    try:
+        assert worlds['auto'].renderer_name == 'egl'
+        images = {kind: world.render_camera('left_hand_camera', camera) for kind, world in worlds.items()}
+        table = images['tiny'][250:, :, 1].astype(float)          # below the block: table only
+        # the speckle shows: mean step between neighbouring pixels measured 0.69 (0.09 for a flat table, vignetting)
+        assert np.abs(np.diff(table, axis=1)).mean() > 0.3
+        # measured 0.0002 (down) and 0.0007 (angled), 0.01-0.02 % of the pixels: texels split differently where a
+        # pixel centre falls on a texel edge, and silhouettes. The margin allows a few hundred such pixels; a flat
+        # table, or the texture flipped, shifted or sampled at another scale, costs 8-13 grey levels.
+        assert mean_abs_difference(images['tiny'], images['auto']) < 0.05
+        assert np.mean(np.any(images['tiny'] != images['auto'], axis=2)) < 0.001
+        # measured 18-24 ms against 92-100 ms a frame (load average 3-8 on 2 cores; the look's image formation,
+        # ~10 ms, in both): half leaves room for contention and still fails if TinyRenderer drew the frames
+        assert cpu_per_frame(worlds['auto'], camera) < 0.5 * cpu_per_frame(worlds['tiny'], camera)
+    finally:
+        for world in worlds.values():
+            world.close()
+
+
+@needs_egl
 def test_egl_draws_the_chessboard_as_tinyrenderer_does(camera):
     """config/scenes/hand_eye.yaml (a chessboard: a white box and a mesh of black quads on it; 2 x 2 samples a
     pixel): the same image of the board from both renderers.
@@ -160,15 +191,20 @@ def test_egl_follows_the_scene_and_draws_the_arm_as_tinyrenderer_does():
 
 
 @needs_egl
-def test_shapes_egl_does_not_draw_go_to_tinyrenderer(camera, caplog):
-    """Textures (PyBullet gives them back to no one): 'auto' picks TinyRenderer, 'egl' refuses. A sphere added
-    to the scene later: TinyRenderer draws the frames from then on, said once in the log."""
+def test_shapes_egl_does_not_draw_go_to_tinyrenderer(camera, caplog, monkeypatch):
+    """A texture on a body that is not a box (the robot): 'auto' picks TinyRenderer, 'egl' refuses; on the table
+    'auto' picks EGL. A sphere added to the scene later: TinyRenderer draws the frames from then on, said once
+    in the log."""
+    monkeypatch.delenv(render.RENDERER_ENV, raising=False)
     world = SimWorld(load_scene(), renderer='egl')
     try:
-        meshes = world._renderer._meshes
-        assert render.make_renderer('auto', world._client, meshes, textured=True).name == 'tiny'
-        with pytest.raises(render.RendererUnavailable, match='textured'):
-            render.make_renderer('egl', world._client, meshes, textured=True)
+        meshes, image = world._renderer._meshes, table_texture(AppearanceConfig.from_dict(expand('baxter')), 64)
+        with pytest.raises(render.RendererUnavailable, match='textures on boxes only'):
+            render.make_renderer('egl', world._client, meshes, textures={world._robot: image})
+        for body, expected in ((world._robot, 'tiny'), (world._table, 'egl')):
+            renderer = render.make_renderer('auto', world._client, meshes, textures={body: image})
+            assert renderer.name == expected
+            renderer.close()
         sphere = p.createVisualShape(p.GEOM_SPHERE, radius=0.02, rgbaColor=[0.9, 0.1, 0.1, 1.0],
                                      physicsClientId=world._client)
         T_camera = world.link_pose('left_hand_camera')

@@ -9,6 +9,8 @@ distortion needs, 657x413 px, then ``cv2.remap``):
 - ``tiny``: PyBullet's TinyRenderer (``sim.render.TinyRenderer``);
 - ``egl``, ``egl LP=0|1``: OpenGL through EGL (``sim.render.EglRenderer``) with llvmpipe's default thread count
   (one per core) or ``LP_NUM_THREADS`` 0 (rasterised in the calling thread) or 1;
+- ``tiny baxter``, ``egl baxter``: the same with the scene's ``appearance: baxter`` (the table a speckle texture,
+  ``sim.appearance.table_texture``; EGL draws it as TinyRenderer does); ``|diff|`` against ``tiny baxter``;
 - ``pybullet-egl``: PyBullet's own EGL plugin (``eglRenderer``, ``ER_BULLET_HARDWARE_OPENGL``), loaded before the
   bodies are made. Its images are not the fake's (it skips meshes given as vertices -- the blocks --, shades
   with its own fixed light model and a shadow pass): timed for comparison only.
@@ -30,12 +32,14 @@ import time
 
 import numpy as np
 
-CANDIDATES = {          # name: (renderer, extra environment)
-    'tiny': ('tiny', {}),
-    'egl': ('egl', {}),
-    'egl LP=0': ('egl', {'LP_NUM_THREADS': '0'}),
-    'egl LP=1': ('egl', {'LP_NUM_THREADS': '1'}),
-    'pybullet-egl': ('pybullet-egl', {}),
+CANDIDATES = {          # name: (renderer, extra environment, appearance)
+    'tiny': ('tiny', {}, 'clean'),
+    'egl': ('egl', {}, 'clean'),
+    'egl LP=0': ('egl', {'LP_NUM_THREADS': '0'}, 'clean'),
+    'egl LP=1': ('egl', {'LP_NUM_THREADS': '1'}, 'clean'),
+    'tiny baxter': ('tiny', {}, 'baxter'),
+    'egl baxter': ('egl', {}, 'baxter'),
+    'pybullet-egl': ('pybullet-egl', {}, 'clean'),
 }
 CAMERA = ('left_hand_camera', 640, 400, 20.0)      # name, width, height, fps
 
@@ -47,14 +51,16 @@ def process_cpu_seconds():
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def make_world(renderer, start):
-    """SimWorld of the default scene from ``start``; ``renderer`` 'pybullet-egl' loads PyBullet's EGL plugin into
-    the world's client before its bodies exist (the plugin only draws bodies made after it) and draws with TinyRenderer
-    calls, which the plugin then serves."""
+def make_world(renderer, start, look='clean'):
+    """SimWorld of the default scene from ``start`` with appearance preset ``look``; ``renderer`` 'pybullet-egl'
+    loads PyBullet's EGL plugin into the world's client before its bodies exist (the plugin only draws bodies made
+    after it) and draws with TinyRenderer calls, which the plugin then serves."""
     import pybullet as p
     from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, load_scene
     from baxter_pnp.sim.world import SimWorld
-    scene = dataclasses.replace(load_scene(DEFAULT_SCENE_YAML), start=start)
+    from baxter_pnp.sim.appearance import AppearanceConfig, expand
+    scene = dataclasses.replace(load_scene(DEFAULT_SCENE_YAML), start=start,
+                                appearance=AppearanceConfig.from_dict(expand(look)))
     if renderer != 'pybullet-egl':
         return SimWorld(scene, renderer=renderer)
     connect = p.connect
@@ -70,12 +76,12 @@ def make_world(renderer, start):
         p.connect = connect
 
 
-def measure(renderer, start, frames, image_path):
+def measure(renderer, start, frames, image_path, look='clean'):
     """{render_ms, cpu_ms, loop_factor, description} of ``renderer`` in this process; the last image goes to
     ``image_path`` (.npy)."""
     from baxter_pnp.sim.cameras import sensor_model, sensor_window
     name, width, height, fps = CAMERA
-    world = make_world(renderer, start)
+    world = make_world(renderer, start, look)
     camera = sensor_model(name).windowed(sensor_window(width, height))
     image = world._render(name, camera)                  # warm-up: shader compilation, maps
     times, cpu = [], process_cpu_seconds()
@@ -100,10 +106,10 @@ def measure(renderer, start, frames, image_path):
 
 def run_candidate(name, start, frames, folder):
     """``measure`` in a child process for candidate ``name``; (results dict, image) or (None, error text)."""
-    renderer, extra = CANDIDATES[name]
+    renderer, extra, look = CANDIDATES[name]
     image_path = os.path.join(folder, name.replace(' ', '_').replace('=', '') + '.npy')
     command = [sys.executable, '-m', 'baxter_pnp.bench.render_bench', '--worker', renderer, '--start', start,
-               '--frames', str(frames), '--image', image_path]
+               '--frames', str(frames), '--image', image_path, '--look', look]
     done = subprocess.run(command, env={**os.environ, **extra}, capture_output=True, text=True, timeout=600)
     lines = [line for line in done.stdout.splitlines() if line.startswith('{')]
     if done.returncode != 0 or not lines:
@@ -119,22 +125,25 @@ def main(argv=None):
     parser.add_argument('--only', action='append', choices=sorted(CANDIDATES), help='candidates to run (repeatable)')
     parser.add_argument('--worker', help=argparse.SUPPRESS)
     parser.add_argument('--image', help=argparse.SUPPRESS)
+    parser.add_argument('--look', default='clean', help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(measure(args.worker, args.start, args.frames, args.image)))
+        print(json.dumps(measure(args.worker, args.start, args.frames, args.image, args.look)))
         return 0
     print(f'{CAMERA[0]} {CAMERA[1]}x{CAMERA[2]}, start pose {args.start}, {args.frames} frames per candidate, '
           f'{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}')
     print(f'{"candidate":14s} {"render ms":>9s} {"cpu ms":>7s} {"|diff|":>7s} {"loop x":>7s}  renderer')
-    reference = None
+    references = {}         # appearance -> the tiny image of it
     with tempfile.TemporaryDirectory() as folder:
         for name in args.only or list(CANDIDATES):
             result, image = run_candidate(name, args.start, args.frames, folder)
             if result is None:
                 print(f'{name:14s} unavailable: {image}')
                 continue
-            if reference is None and name == 'tiny':
-                reference = image.astype(np.int16)
+            look = CANDIDATES[name][2]
+            if CANDIDATES[name][0] == 'tiny':
+                references.setdefault(look, image.astype(np.int16))
+            reference = references.get(look)
             diff = '-' if reference is None else f'{np.abs(image.astype(np.int16) - reference).mean():.2f}'
             print(f'{name:14s} {result["render_ms"]:9.1f} {result["cpu_ms"]:7.1f} {diff:>7s} '
                   f'{result["loop_factor"]:7.2f}  {result["description"]}', flush=True)

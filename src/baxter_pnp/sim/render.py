@@ -11,9 +11,10 @@ the optical frame (x right, y down, z forward) in the world (= Baxter's ``base``
   llvmpipe software rasteriser here, a GPU driver where there is one), ~5 ms of CPU a frame. It reads the
   scene from PyBullet (``getVisualShapeData``: boxes, cylinders, and the meshes its owner passes in)
   and shades it with TinyRenderer's model and ``LIGHT`` (ambient + diffuse + specular, light colour,
-  no shadows, 8-bit arithmetic), so its images are TinyRenderer's but for a few silhouette pixels.
+  no shadows, 8-bit arithmetic; textured boxes, e.g. the ``baxter`` look's table, mapped as PyBullet maps
+  a box), so its images are TinyRenderer's but for a few silhouette pixels.
 
-``make_renderer('auto' | 'egl' | 'tiny', client, meshes)`` builds one; 'auto' is EGL when it works here,
+``make_renderer('auto' | 'egl' | 'tiny', client, meshes, textures)`` builds one; 'auto' is EGL when it works here,
 else TinyRenderer, with one log line saying why. ``BAXTER_PNP_RENDERER`` overrides 'auto'.
 PyBullet's own EGL plugin (``eglRenderer``) was measured too (``baxter_pnp.bench.render_bench``): it does
 not draw meshes given as vertices (the blocks), ignores the ambient/diffuse coefficients, adds a shadow
@@ -23,13 +24,14 @@ import ctypes
 import logging
 import math
 import os
-import threading
 
 import cv2
 import numpy as np
 import pybullet as p
 
 from baxter_pnp.camera import CameraModel
+from baxter_pnp.sim import egl
+from baxter_pnp.sim.egl import RendererUnavailable
 from baxter_pnp.transforms import invert
 
 LOG = logging.getLogger(__name__)
@@ -43,16 +45,15 @@ TINY_SHININESS = 2.0                        # TinyRenderer's specular exponent f
 T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-class RendererUnavailable(RuntimeError):
-    """The requested renderer cannot run here (no EGL library, no OpenGL 3.3, a shape it cannot draw)."""
 
 
-def make_renderer(kind, client, meshes=None, textured=False):
+def make_renderer(kind, client, meshes=None, textures=None):
     """A renderer of PyBullet ``client``: ``kind`` 'egl', 'tiny' or 'auto' (EGL if it works, else Tiny; the
     ``BAXTER_PNP_RENDERER`` environment variable, if set, replaces 'auto'). ``meshes``: {body id: (vertices
     (V, 3), normals (V, 3), indices (3T,))} of the bodies whose visual shape is a mesh given as vertices.
-    ``textured``: a shape of the client has a texture, which only TinyRenderer draws (PyBullet tells neither
-    which shape has one nor the texture). 'egl' raises ``RendererUnavailable`` where it cannot run."""
+    ``textures``: {body id: (H, W, 3) uint8 RGB image} of the box bodies given a texture in PyBullet (the same
+    image: PyBullet gives textures back to no one); EGL draws them, TinyRenderer uses PyBullet's own.
+    'egl' raises ``RendererUnavailable`` where it cannot run."""
     if kind not in RENDERERS:
         raise ValueError(f'unknown renderer {kind!r} (expected one of {", ".join(RENDERERS)})')
     if kind == 'auto':
@@ -62,9 +63,7 @@ def make_renderer(kind, client, meshes=None, textured=False):
     if kind == 'tiny':
         return TinyRenderer(client)
     try:
-        if textured:
-            raise RendererUnavailable('textured shapes are drawn by TinyRenderer only')
-        return EglRenderer(client, meshes)
+        return EglRenderer(client, meshes, textures)
     except RendererUnavailable as error:
         if kind == 'egl':
             raise
@@ -136,16 +135,19 @@ class EglRenderer:
     pose of the moment. Shading: TinyRenderer's (``_SHADING``) with ``LIGHT``. Measured on the default
     scene: the images equal TinyRenderer's but for a few silhouette pixels of the cylinders
     (tests/test_render.py). The scene is re-read from PyBullet at each render (new bodies, colours).
-    Textures are not drawn (``make_renderer(textured=True)`` picks TinyRenderer); a shape of a kind it cannot
-    draw (a sphere, a mesh file) makes TinyRenderer draw the frames from then on (logged once).
+    A box body given a texture (``textures``) is drawn with it: PyBullet's box texture coordinates (``_BOX_UV``),
+    nearest texel. A shape of a kind it cannot draw (a sphere, a mesh file, a texture on a shape other than a
+    box) makes TinyRenderer draw the frames from then on (logged once).
     """
 
     name = 'egl'
 
-    def __init__(self, client, meshes=None):
+    def __init__(self, client, meshes=None, textures=None):
         self._client = client
         self._meshes = dict(meshes or {})
-        self._gl = _shared_context()
+        self._images = {body: np.ascontiguousarray(image, np.uint8) for body, image in (textures or {}).items()}
+        self._textures = {}            # body -> OpenGL texture name, made at the first build
+        self._gl = egl.shared_context()
         self._signature = None
         self._parts = []               # [_Part], in the order of the vertex buffer
         self._framebuffers = {}        # (width, height) -> (framebuffer, colour, depth) names
@@ -153,9 +155,9 @@ class EglRenderer:
         self._closed = False
         self._fallback = None          # TinyRenderer, once the scene holds a shape this one cannot draw
         with self._gl.current():
-            self._programs = {smooth: self._gl.program(*_SHADERS[smooth]) for smooth in (False, True)}
-            self._uniforms = {smooth: {name: self._gl.uniform(program, name) for name in _UNIFORMS}
-                              for smooth, program in self._programs.items()}
+            self._programs = {shader: self._gl.program(*sources) for shader, sources in _SHADERS.items()}
+            self._uniforms = {shader: {name: self._gl.uniform(program, name) for name in _UNIFORMS}
+                              for shader, program in self._programs.items()}
             self._sync_scene()
         # Mesa compiles the shaders at the first draw (LLVM; 45 ms idle, seconds on a loaded machine): draw once
         # now, while the fake boots, not at the first camera frame, where the stall would silence every stream.
@@ -183,28 +185,31 @@ class EglRenderer:
             self._sync_scene()
             poses = self._link_poses()
             clip_from_world = optical_projection(camera) @ invert(T_base_camera)
-            gl.glBindFramebuffer(_GL_FRAMEBUFFER, self._framebuffer(camera.width, camera.height))
+            gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, self._framebuffer(camera.width, camera.height))
             gl.glViewport(0, 0, camera.width, camera.height)
             gl.glClearColor(1.0, 1.0, 1.0, 1.0)
-            gl.glClear(_GL_COLOR_BUFFER_BIT | _GL_DEPTH_BUFFER_BIT)
-            gl.glEnable(_GL_DEPTH_TEST)
+            gl.glClear(egl.GL_COLOR_BUFFER_BIT | egl.GL_DEPTH_BUFFER_BIT)
+            gl.glEnable(egl.GL_DEPTH_TEST)
             gl.glBindVertexArray(self._vertex_array)
-            for smooth, program in self._programs.items():
+            for shader, program in self._programs.items():
                 gl.glUseProgram(program)
-                u = self._uniforms[smooth]
+                u = self._uniforms[shader]
                 self._set_light(u)
                 for part in self._parts:
-                    if part.smooth != smooth or part.rgba[3] == 0:
+                    if part.shader != shader or part.rgba[3] == 0:
                         continue
+                    if shader == 'textured':
+                        gl.glBindTexture(egl.GL_TEXTURE_2D, self._textures[part.body])
+                        gl.glUniform3f(u['tint'], *part.rgba[:3])
                     T_world_link = poses[part.body, part.link]
                     gl.glUniformMatrix4fv(u['clip_from_link'], 1, 1, _floats(clip_from_world @ T_world_link))
                     gl.glUniformMatrix3fv(u['world_from_link'], 1, 1, _floats(T_world_link[:3, :3]))
                     # TinyRenderer keeps the colour as 8-bit (255 x rgba, truncated)
                     gl.glUniform3f(u['colour'], *(math.floor(255 * c) for c in part.rgba[:3]))
-                    gl.glDrawArrays(_GL_TRIANGLES, part.first, part.count)
+                    gl.glDrawArrays(egl.GL_TRIANGLES, part.first, part.count)
             rgba = np.empty((camera.height, camera.width, 4), np.uint8)
-            gl.glPixelStorei(_GL_PACK_ALIGNMENT, 1)
-            gl.glReadPixels(0, 0, camera.width, camera.height, _GL_RGBA, _GL_UNSIGNED_BYTE,
+            gl.glPixelStorei(egl.GL_PACK_ALIGNMENT, 1)
+            gl.glReadPixels(0, 0, camera.width, camera.height, egl.GL_RGBA, egl.GL_UNSIGNED_BYTE,
                             rgba.ctypes.data_as(ctypes.c_void_p))
         return cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)     # 10x faster than reading GL_BGR from llvmpipe
 
@@ -219,9 +224,10 @@ class EglRenderer:
                 gl.glDeleteFramebuffers(1, _uints(framebuffer))
                 gl.glDeleteRenderbuffers(2, _uints(colour, depth))
             self._delete_geometry()
+            gl.glDeleteTextures(len(self._textures), _uints(*self._textures.values()))
             for program in self._programs.values():
                 gl.glDeleteProgram(program)
-        self._framebuffers = {}
+        self._framebuffers, self._textures = {}, {}
 
     def __del__(self):
         try:
@@ -256,27 +262,49 @@ class EglRenderer:
         blocks, parts, first = [], [], 0
         for body, link, kind, dimensions, position, orientation, rgba in shapes:
             vertices, normals = self._triangles(body, kind, dimensions)
+            uv, shader = np.zeros((len(vertices), 2)), 'flat'
+            if body in self._images:
+                self._upload_texture(body, kind)
+                uv, shader = _box_uv(vertices, normals), 'textured'
+            elif not np.allclose(normals[0::3], normals[1::3]) or not np.allclose(normals[0::3], normals[2::3]):
+                shader = 'smooth'
             R = np.reshape(p.getMatrixFromQuaternion(orientation), (3, 3))
             vertices = vertices @ R.T + np.asarray(position)
             normals = normals @ R.T
-            blocks.append(np.hstack([vertices, normals]).astype(np.float32))
-            smooth = not np.allclose(normals[0::3], normals[1::3]) or not np.allclose(normals[0::3], normals[2::3])
-            parts.append(_Part(body, link, first, len(vertices), rgba, smooth))
+            blocks.append(np.hstack([vertices, normals, uv]).astype(np.float32))
+            parts.append(_Part(body, link, first, len(vertices), rgba, shader))
             first += len(vertices)
-        data = np.ascontiguousarray(np.vstack(blocks) if blocks else np.zeros((0, 6), np.float32))
+        data = np.ascontiguousarray(np.vstack(blocks) if blocks else np.zeros((0, 8), np.float32))
         gl = self._gl
         self._delete_geometry()
         self._vertex_array, self._vertex_buffer = gl.gen(gl.glGenVertexArrays), gl.gen(gl.glGenBuffers)
         gl.glBindVertexArray(self._vertex_array)
-        gl.glBindBuffer(_GL_ARRAY_BUFFER, self._vertex_buffer)
-        gl.glBufferData(_GL_ARRAY_BUFFER, data.nbytes, data.ctypes.data_as(ctypes.c_void_p), _GL_STATIC_DRAW)
-        for location, offset in ((0, 0), (1, 12)):
+        gl.glBindBuffer(egl.GL_ARRAY_BUFFER, self._vertex_buffer)
+        gl.glBufferData(egl.GL_ARRAY_BUFFER, data.nbytes, data.ctypes.data_as(ctypes.c_void_p), egl.GL_STATIC_DRAW)
+        for location, size, offset in ((0, 3, 0), (1, 3, 12), (2, 2, 24)):     # position, normal, uv
             gl.glEnableVertexAttribArray(location)
-            gl.glVertexAttribPointer(location, 3, _GL_FLOAT, 0, 24, ctypes.c_void_p(offset))
+            gl.glVertexAttribPointer(location, size, egl.GL_FLOAT, 0, 32, ctypes.c_void_p(offset))
         self._parts = parts
         self._link_keys = {}
         for part in parts:
             self._link_keys.setdefault(part.body, set()).add(part.link)
+
+    def _upload_texture(self, body, kind):
+        """``body``'s image as an OpenGL texture (once): nearest texel, repeated, flipped as PyBullet flips a loaded
+        texture (row 0 at t = 1; measured: the other 7 orientations differ from TinyRenderer by 12 grey levels)."""
+        if kind != p.GEOM_BOX:
+            raise RendererUnavailable(f'body {body}: the EGL renderer draws textures on boxes only')
+        if body in self._textures:
+            return
+        gl, image = self._gl, np.ascontiguousarray(self._images[body][::-1])
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise RendererUnavailable(f'body {body}: texture of shape {image.shape}, expected (H, W, 3) RGB')
+        gl.glBindTexture(egl.GL_TEXTURE_2D, self._textures.setdefault(body, gl.gen(gl.glGenTextures)))
+        gl.glPixelStorei(egl.GL_UNPACK_ALIGNMENT, 1)
+        gl.glTexImage2D(egl.GL_TEXTURE_2D, 0, egl.GL_RGB8, image.shape[1], image.shape[0], 0, egl.GL_RGB, egl.GL_UNSIGNED_BYTE,
+                        image.ctypes.data_as(ctypes.c_void_p))
+        for parameter in (egl.GL_TEXTURE_MIN_FILTER, egl.GL_TEXTURE_MAG_FILTER):
+            gl.glTexParameteri(egl.GL_TEXTURE_2D, parameter, egl.GL_NEAREST)
 
     def _delete_geometry(self):
         if self._vertex_array is not None:
@@ -328,25 +356,26 @@ class EglRenderer:
             gl = self._gl
             framebuffer = gl.gen(gl.glGenFramebuffers)
             colour, depth = gl.gen(gl.glGenRenderbuffers), gl.gen(gl.glGenRenderbuffers)
-            gl.glBindFramebuffer(_GL_FRAMEBUFFER, framebuffer)
-            for name, storage, attachment in ((colour, _GL_RGBA8, _GL_COLOR_ATTACHMENT0),
-                                              (depth, _GL_DEPTH_COMPONENT24, _GL_DEPTH_ATTACHMENT)):
-                gl.glBindRenderbuffer(_GL_RENDERBUFFER, name)
-                gl.glRenderbufferStorage(_GL_RENDERBUFFER, storage, width, height)
-                gl.glFramebufferRenderbuffer(_GL_FRAMEBUFFER, attachment, _GL_RENDERBUFFER, name)
-            status = gl.glCheckFramebufferStatus(_GL_FRAMEBUFFER)
-            if status != _GL_FRAMEBUFFER_COMPLETE:
+            gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, framebuffer)
+            for name, storage, attachment in ((colour, egl.GL_RGBA8, egl.GL_COLOR_ATTACHMENT0),
+                                              (depth, egl.GL_DEPTH_COMPONENT24, egl.GL_DEPTH_ATTACHMENT)):
+                gl.glBindRenderbuffer(egl.GL_RENDERBUFFER, name)
+                gl.glRenderbufferStorage(egl.GL_RENDERBUFFER, storage, width, height)
+                gl.glFramebufferRenderbuffer(egl.GL_FRAMEBUFFER, attachment, egl.GL_RENDERBUFFER, name)
+            status = gl.glCheckFramebufferStatus(egl.GL_FRAMEBUFFER)
+            if status != egl.GL_FRAMEBUFFER_COMPLETE:
                 raise RendererUnavailable(f'OpenGL framebuffer {width}x{height} incomplete (status {status:#x})')
             self._framebuffers[key] = (framebuffer, colour, depth)
         return self._framebuffers[key][0]
 
 
 class _Part:
-    """A run of triangles of one visual shape: drawn in link ``link`` of ``body`` with colour ``rgba``;
-    ``smooth``: its vertex normals vary over a triangle (shaded per pixel; else per triangle)."""
+    """A run of triangles of one visual shape: drawn in link ``link`` of ``body`` with colour ``rgba`` by the
+    program ``shader``: 'flat' (shaded per triangle), 'smooth' (its vertex normals vary over a triangle: per
+    pixel) or 'textured' (the body's texture x rgba, per pixel)."""
 
-    def __init__(self, body, link, first, count, rgba, smooth):
-        self.body, self.link, self.first, self.count, self.rgba, self.smooth = body, link, first, count, rgba, smooth
+    def __init__(self, body, link, first, count, rgba, shader):
+        self.body, self.link, self.first, self.count, self.rgba, self.shader = body, link, first, count, rgba, shader
 
 
 def _matrix(position, quaternion):
@@ -367,6 +396,24 @@ def _box_triangles(half):
     normals = np.cross(b - a, c - a)
     normals *= np.sign(np.sum(normals * (a + b + c), axis=1, keepdims=True))     # outward
     return vertices, np.repeat(normals / np.linalg.norm(normals, axis=1, keepdims=True), 3, axis=0)
+
+
+# PyBullet's texture coordinates of a box (bullet3 OpenGLWindow/ShapeData.h cube_vertices_textured): {face normal:
+# {corner (x, y, z signs): (u, v)}}. The +z face (the table top) shows u 0.75..1 along x, v 0.25..0 along y.
+_BOX_UV = {
+    (0, 0, 1): {(-1, -1, 1): (0.75, 0.25), (1, -1, 1): (1, 0.25), (1, 1, 1): (1, 0), (-1, 1, 1): (0.75, 0)},
+    (0, 0, -1): {(-1, -1, -1): (0.5, 0.25), (1, -1, -1): (0.25, 0.25), (1, 1, -1): (0.25, 0), (-1, 1, -1): (0.5, 0)},
+    (-1, 0, 0): {(-1, -1, -1): (0.5, 0), (-1, 1, -1): (0.75, 0), (-1, 1, 1): (0.75, 0.25), (-1, -1, 1): (0.5, 0.25)},
+    (1, 0, 0): {(1, -1, -1): (0.25, 0.5), (1, 1, -1): (0.25, 0.25), (1, 1, 1): (0, 0.25), (1, -1, 1): (0, 0.5)},
+    (0, -1, 0): {(-1, -1, -1): (0.25, 0.5), (-1, -1, 1): (0.25, 0.25), (1, -1, 1): (0.5, 0.25), (1, -1, -1): (0.5, 0.5)},
+    (0, 1, 0): {(-1, 1, -1): (0, 0), (-1, 1, 1): (0, 0.25), (1, 1, 1): (0.25, 0.25), (1, 1, -1): (0.25, 0)},
+}
+
+
+def _box_uv(vertices, normals):
+    """(3T, 2) texture coordinates of ``_box_triangles``' vertices (box frame, m) and face normals: ``_BOX_UV``."""
+    return np.array([_BOX_UV[tuple(np.rint(n).astype(int))][tuple(np.sign(v).astype(int))]
+                     for v, n in zip(vertices, normals)], float)
 
 
 def _cylinder_triangles(length, radius, steps=32):
@@ -399,38 +446,40 @@ def _uints(*names):
 # light_colour), at most 255. Per pixel for smooth parts; per triangle (in the vertex shader) for flat ones,
 # whose pixels all have the triangle's normal: the same values, at a fraction of the cost.
 _SHADING = """
-uniform vec3 colour;             // 0..255
+uniform vec3 colour;             // 0..255 (untextured parts)
 uniform vec3 light_direction;    // unit, world
 uniform vec3 light_colour;
 uniform float ambient, diffuse, specular, shininess;
-vec3 shade(vec3 world_normal) {
+float lighting(vec3 world_normal) {
     vec3 n = normalize(world_normal);
     float n_dot_l = dot(n, light_direction);
     vec3 reflection = normalize(n * (2.0 * n_dot_l) - light_direction);
-    float lit = diffuse * max(n_dot_l, 0.0) + specular * pow(max(reflection.z, 0.0), shininess);
-    vec3 value = ambient * colour + lit * colour * light_colour;
-    return min(floor(value), vec3(255.0)) / 255.0;
+    return diffuse * max(n_dot_l, 0.0) + specular * pow(max(reflection.z, 0.0), shininess);
+}
+vec3 shade(float lit, vec3 colour) {
+    return min(floor(ambient * colour + lit * colour * light_colour), vec3(255.0)) / 255.0;
 }
 """
 _VERTEX_INPUTS = """#version 330 core
 layout(location = 0) in vec3 position;   // m, link frame
 layout(location = 1) in vec3 normal;     // link frame
+layout(location = 2) in vec2 uv;         // texture coordinates (textured parts)
 uniform mat4 clip_from_link;
 uniform mat3 world_from_link;
 """
-_SHADERS = {    # smooth: (vertex shader, fragment shader)
-    False: (_VERTEX_INPUTS + _SHADING + """
+_SHADERS = {    # name: (vertex shader, fragment shader)
+    'flat': (_VERTEX_INPUTS + _SHADING + """
 flat out vec3 shaded;
 void main() {
     gl_Position = clip_from_link * vec4(position, 1.0);
-    shaded = shade(world_from_link * normal);
+    shaded = shade(lighting(world_from_link * normal), colour);
 }
 """, """#version 330 core
 flat in vec3 shaded;
 out vec4 fragment;
 void main() { fragment = vec4(shaded, 1.0); }
 """),
-    True: (_VERTEX_INPUTS + """
+    'smooth': (_VERTEX_INPUTS + """
 out vec3 world_normal;
 void main() {
     gl_Position = clip_from_link * vec4(position, 1.0);
@@ -440,205 +489,28 @@ void main() {
 in vec3 world_normal;
 out vec4 fragment;
 """ + _SHADING + """
-void main() { fragment = vec4(shade(world_normal), 1.0); }
+void main() { fragment = vec4(shade(lighting(world_normal), colour), 1.0); }
+"""),
+    # TinyRenderer: the texel (nearest, 8-bit) x rgba, truncated, then shaded; the light per (flat) box triangle
+    'textured': (_VERTEX_INPUTS + _SHADING + """
+flat out float lit;
+out vec2 texture_uv;
+void main() {
+    gl_Position = clip_from_link * vec4(position, 1.0);
+    lit = lighting(world_from_link * normal);
+    texture_uv = uv;
+}
+""", """#version 330 core
+flat in float lit;
+in vec2 texture_uv;
+uniform sampler2D image;
+uniform vec3 tint;               // rgba of the shape, 0..1
+out vec4 fragment;
+""" + _SHADING + """
+void main() {
+    fragment = vec4(shade(lit, floor(round(texture(image, texture_uv).rgb * 255.0) * tint)), 1.0);
+}
 """),
 }
 _UNIFORMS = ('clip_from_link', 'world_from_link', 'colour', 'light_direction', 'light_colour', 'ambient', 'diffuse',
-             'specular', 'shininess')
-
-
-# ------------------------------------------------------------------------------ EGL context and GL calls
-_GL_TRIANGLES, _GL_FLOAT, _GL_UNSIGNED_BYTE = 0x0004, 0x1406, 0x1401
-_GL_COLOR_BUFFER_BIT, _GL_DEPTH_BUFFER_BIT, _GL_DEPTH_TEST = 0x4000, 0x0100, 0x0B71
-_GL_ARRAY_BUFFER, _GL_STATIC_DRAW = 0x8892, 0x88E4
-_GL_FRAMEBUFFER, _GL_RENDERBUFFER, _GL_FRAMEBUFFER_COMPLETE = 0x8D40, 0x8D41, 0x8CD5
-_GL_COLOR_ATTACHMENT0, _GL_DEPTH_ATTACHMENT = 0x8CE0, 0x8D00
-_GL_RGBA8, _GL_DEPTH_COMPONENT24, _GL_RGBA, _GL_PACK_ALIGNMENT = 0x8058, 0x81A6, 0x1908, 0x0D05
-_GL_VERTEX_SHADER, _GL_FRAGMENT_SHADER, _GL_COMPILE_STATUS, _GL_LINK_STATUS = 0x8B31, 0x8B30, 0x8B81, 0x8B82
-_GL_RENDERER = 0x1F01
-_EGL_PLATFORM_SURFACELESS_MESA, _EGL_PLATFORM_DEVICE_EXT = 0x31DD, 0x313F
-_EGL_OPENGL_API, _EGL_NONE = 0x30A2, 0x3038
-_EGL_CONTEXT_MAJOR_VERSION, _EGL_CONTEXT_MINOR_VERSION = 0x3098, 0x30FB
-_EGL_CONTEXT_OPENGL_PROFILE_MASK, _EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT = 0x30FD, 0x1
-
-_c = ctypes
-_GL_FUNCTIONS = {     # name: (result, argument types)
-    'glGetString': (_c.c_char_p, [_c.c_uint]),
-    'glGetError': (_c.c_uint, []),
-    'glViewport': (None, [_c.c_int] * 4),
-    'glClearColor': (None, [_c.c_float] * 4),
-    'glClear': (None, [_c.c_uint]),
-    'glEnable': (None, [_c.c_uint]),
-    'glPixelStorei': (None, [_c.c_uint, _c.c_int]),
-    'glReadPixels': (None, [_c.c_int, _c.c_int, _c.c_int, _c.c_int, _c.c_uint, _c.c_uint, _c.c_void_p]),
-    'glGenFramebuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glDeleteFramebuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glBindFramebuffer': (None, [_c.c_uint, _c.c_uint]),
-    'glCheckFramebufferStatus': (_c.c_uint, [_c.c_uint]),
-    'glGenRenderbuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glDeleteRenderbuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glBindRenderbuffer': (None, [_c.c_uint, _c.c_uint]),
-    'glRenderbufferStorage': (None, [_c.c_uint, _c.c_uint, _c.c_int, _c.c_int]),
-    'glFramebufferRenderbuffer': (None, [_c.c_uint, _c.c_uint, _c.c_uint, _c.c_uint]),
-    'glGenVertexArrays': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glDeleteVertexArrays': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glBindVertexArray': (None, [_c.c_uint]),
-    'glGenBuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glDeleteBuffers': (None, [_c.c_int, _c.POINTER(_c.c_uint)]),
-    'glBindBuffer': (None, [_c.c_uint, _c.c_uint]),
-    'glBufferData': (None, [_c.c_uint, _c.c_ssize_t, _c.c_void_p, _c.c_uint]),
-    'glEnableVertexAttribArray': (None, [_c.c_uint]),
-    'glVertexAttribPointer': (None, [_c.c_uint, _c.c_int, _c.c_uint, _c.c_ubyte, _c.c_int, _c.c_void_p]),
-    'glDrawArrays': (None, [_c.c_uint, _c.c_int, _c.c_int]),
-    'glCreateShader': (_c.c_uint, [_c.c_uint]),
-    'glShaderSource': (None, [_c.c_uint, _c.c_int, _c.POINTER(_c.c_char_p), _c.c_void_p]),
-    'glCompileShader': (None, [_c.c_uint]),
-    'glGetShaderiv': (None, [_c.c_uint, _c.c_uint, _c.POINTER(_c.c_int)]),
-    'glGetShaderInfoLog': (None, [_c.c_uint, _c.c_int, _c.c_void_p, _c.c_char_p]),
-    'glDeleteShader': (None, [_c.c_uint]),
-    'glCreateProgram': (_c.c_uint, []),
-    'glAttachShader': (None, [_c.c_uint, _c.c_uint]),
-    'glLinkProgram': (None, [_c.c_uint]),
-    'glGetProgramiv': (None, [_c.c_uint, _c.c_uint, _c.POINTER(_c.c_int)]),
-    'glGetProgramInfoLog': (None, [_c.c_uint, _c.c_int, _c.c_void_p, _c.c_char_p]),
-    'glDeleteProgram': (None, [_c.c_uint]),
-    'glUseProgram': (None, [_c.c_uint]),
-    'glGetUniformLocation': (_c.c_int, [_c.c_uint, _c.c_char_p]),
-    'glUniform1f': (None, [_c.c_int, _c.c_float]),
-    'glUniform3f': (None, [_c.c_int, _c.c_float, _c.c_float, _c.c_float]),
-    'glUniformMatrix3fv': (None, [_c.c_int, _c.c_int, _c.c_ubyte, _c.POINTER(_c.c_float)]),
-    'glUniformMatrix4fv': (None, [_c.c_int, _c.c_int, _c.c_ubyte, _c.POINTER(_c.c_float)]),
-}
-
-
-class _EglContext:
-    """One OpenGL 3.3 core context per process on an EGL display without a window (Mesa's surfaceless
-    platform, else the first EGL device), its GL functions as attributes (``gl.glClear(...)``).
-    ``current()`` makes it current in the calling thread for a block (one thread at a time)."""
-
-    def __init__(self):
-        try:
-            egl = ctypes.CDLL('libEGL.so.1')
-        except OSError as error:
-            raise RendererUnavailable(f'no EGL library ({error})') from None
-        egl.eglGetProcAddress.restype = ctypes.c_void_p
-        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
-        egl.eglInitialize.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int)]
-        egl.eglBindAPI.argtypes = [ctypes.c_uint]
-        egl.eglCreateContext.restype = ctypes.c_void_p
-        egl.eglCreateContext.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                                         ctypes.POINTER(ctypes.c_int)]
-        egl.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
-        egl.eglGetError.restype = ctypes.c_int
-        self._egl = egl
-        self._display = self._open_display()
-        if not egl.eglBindAPI(_EGL_OPENGL_API):
-            raise RendererUnavailable(f'eglBindAPI(OpenGL) failed ({egl.eglGetError():#x})')
-        attributes = (ctypes.c_int * 7)(_EGL_CONTEXT_MAJOR_VERSION, 3, _EGL_CONTEXT_MINOR_VERSION, 3,
-                                        _EGL_CONTEXT_OPENGL_PROFILE_MASK, _EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
-                                        _EGL_NONE)
-        self._context = egl.eglCreateContext(self._display, None, None, attributes)
-        if not self._context:
-            raise RendererUnavailable(f'no OpenGL 3.3 core context ({egl.eglGetError():#x})')
-        self._lock = threading.RLock()
-        for name, (result, arguments) in _GL_FUNCTIONS.items():
-            address = egl.eglGetProcAddress(name.encode())
-            if not address:
-                raise RendererUnavailable(f'OpenGL function {name} missing')
-            setattr(self, name, ctypes.CFUNCTYPE(result, *arguments)(address))
-        with self.current():
-            self.description = (self.glGetString(_GL_RENDERER) or b'?').decode(errors='replace')
-
-    def _open_display(self):
-        egl = self._egl
-        get_platform_display = egl.eglGetProcAddress(b'eglGetPlatformDisplayEXT')
-        if not get_platform_display:
-            raise RendererUnavailable('EGL has no eglGetPlatformDisplayEXT')
-        get_platform_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p,
-                                                ctypes.c_void_p)(get_platform_display)
-        candidates = [(_EGL_PLATFORM_SURFACELESS_MESA, None)]
-        query_devices = egl.eglGetProcAddress(b'eglQueryDevicesEXT')
-        if query_devices:
-            devices, count = (ctypes.c_void_p * 4)(), ctypes.c_int()
-            ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(ctypes.c_int))(
-                query_devices)(4, devices, ctypes.byref(count))
-            candidates += [(_EGL_PLATFORM_DEVICE_EXT, devices[i]) for i in range(count.value)]
-        major, minor = ctypes.c_int(), ctypes.c_int()
-        for platform, native in candidates:
-            display = get_platform_display(platform, native, None)
-            if display and egl.eglInitialize(display, ctypes.byref(major), ctypes.byref(minor)):
-                return display
-        raise RendererUnavailable(f'no EGL display without a window could be initialised ({egl.eglGetError():#x})')
-
-    def current(self):
-        """Context manager: this context is current in the calling thread for the block."""
-        return _Current(self)
-
-    def gen(self, function):
-        """One new name from a glGen* ``function``."""
-        name = ctypes.c_uint()
-        function(1, ctypes.byref(name))
-        return name.value
-
-    def program(self, vertex_source, fragment_source):
-        """A linked shader program; RendererUnavailable with the compiler's log otherwise."""
-        shaders = []
-        for kind, source in ((_GL_VERTEX_SHADER, vertex_source), (_GL_FRAGMENT_SHADER, fragment_source)):
-            shader = self.glCreateShader(kind)
-            self.glShaderSource(shader, 1, ctypes.byref(ctypes.c_char_p(source.encode())), None)
-            self.glCompileShader(shader)
-            self._check(shader, self.glGetShaderiv, self.glGetShaderInfoLog, _GL_COMPILE_STATUS, 'compile')
-            shaders.append(shader)
-        program = self.glCreateProgram()
-        for shader in shaders:
-            self.glAttachShader(program, shader)
-        self.glLinkProgram(program)
-        self._check(program, self.glGetProgramiv, self.glGetProgramInfoLog, _GL_LINK_STATUS, 'link')
-        for shader in shaders:
-            self.glDeleteShader(shader)
-        return program
-
-    def uniform(self, program, name):
-        return self.glGetUniformLocation(program, name.encode())
-
-    @staticmethod
-    def _check(name, get, get_log, status, what):
-        ok = ctypes.c_int()
-        get(name, status, ctypes.byref(ok))
-        if not ok.value:
-            log = ctypes.create_string_buffer(4096)
-            get_log(name, len(log), None, log)
-            raise RendererUnavailable(f'shader {what} failed: {log.value.decode(errors="replace")}')
-
-
-class _Current:
-    def __init__(self, context):
-        self._context = context
-
-    def __enter__(self):
-        context = self._context
-        context._lock.acquire()
-        if not context._egl.eglMakeCurrent(context._display, None, None, context._context):
-            context._lock.release()
-            raise RendererUnavailable(f'eglMakeCurrent failed ({context._egl.eglGetError():#x})')
-        return context
-
-    def __exit__(self, *exc):
-        self._context._lock.release()
-
-
-_context, _context_error, _context_lock = None, None, threading.Lock()
-
-
-def _shared_context():
-    """The process's ``_EglContext`` (created on first use; a failure is remembered and raised again)."""
-    global _context, _context_error
-    with _context_lock:
-        if _context is None and _context_error is None:
-            try:
-                _context = _EglContext()
-            except RendererUnavailable as error:
-                _context_error = error
-        if _context_error is not None:
-            raise RendererUnavailable(str(_context_error))
-        return _context
+             'specular', 'shininess', 'tint')

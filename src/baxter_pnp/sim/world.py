@@ -105,7 +105,7 @@ class SimWorld(PyBulletClientOwner):
         self._renderer = make_renderer(renderer, self._client, {
             **{body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
                for body, obj in zip(self._blocks, scene.objects)},
-            **board_meshes}, textured=scene.appearance.table_texture > 0)
+            **board_meshes}, textures=self._textures)
         self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance
         self._respawner = None if scene.respawn is None else _Respawner(self, scene.respawn)
 
@@ -143,10 +143,12 @@ class SimWorld(PyBulletClientOwner):
                                  [table.center[0], table.center[1], table.top_z - TABLE_THICKNESS / 2],
                                  physicsClientId=self._client)
         p.changeDynamics(body, -1, lateralFriction=FRICTION['table'], physicsClientId=self._client)
+        self._textures = {}          # {body: RGB image of its PyBullet texture}, for the EGL renderer
         if textured:        # PyBullet loads textures from files only
+            self._textures[body] = image = appearance.table_texture(look)
             with tempfile.TemporaryDirectory() as folder:
                 path = os.path.join(folder, 'table.png')
-                cv2.imwrite(path, cv2.cvtColor(appearance.table_texture(look), cv2.COLOR_RGB2BGR))
+                cv2.imwrite(path, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
                 texture = p.loadTexture(path, physicsClientId=self._client)
             p.changeVisualShape(body, -1, textureUniqueId=texture, physicsClientId=self._client)
         return body

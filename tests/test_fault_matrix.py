@@ -369,10 +369,11 @@ def test_partly_occluded_block_is_not_grasped_and_the_run_aborts_cleanly(ros_mas
                                                                           tmp_path):
     """A grey plate 6 cm above the table hides 30 % of the block's top face from the start view (a strip
     along one edge, so the visible part is a clean 40 x 28 mm rectangle, a wrong square to a careless
-    detector). What the application does: it never takes the rectangle for the square, backs off upward
-    four times (the plate still hides the strip from straight above), and aborts with ``block_lost``
-    without a single servo step; the block is not touched. (Moving sideways would reveal the whole face:
-    if the application learns that, it should pick the block instead, and this test must change.)"""
+    detector). What the application does: it never takes the rectangle for the square (no believable
+    block at the start), surveys the table, where a view from the side shows the whole face and maps the
+    block, approaches it, loses it under the plate again from above, and aborts with ``block_lost``; the
+    block is not touched. (Approaching from the side that sees the whole face would pick it: if the
+    application learns that, this test must change.)"""
     with open(DEFAULT_SCENE_YAML) as f:
         scene = yaml.safe_load(f)
     block = scene['objects'][0]
@@ -381,7 +382,8 @@ def test_partly_occluded_block_is_not_grasped_and_the_run_aborts_cleanly(ros_mas
     assert 0.27 < hidden < 0.35, hidden                     # the plate does hide ~30 % of the face
     code, result, log, _ = run_case(ros_master, fake_baxter, floors, tmp_path, {'occluder': occluder})
     assert_aborted(code, result, log, 'block_lost', block['xy'])
-    assert result['steps'] == 0 and 'no whole green square in view after 4 re-acquisition moves' in log
+    assert 'surveying the table' in log and 'no whole green square in view after 4 re-acquisition moves and a ' \
+        'survey' in log
 
 
 # ================================================================================ the slip fault, without ROS

@@ -47,6 +47,8 @@ class PickConfig(Parameters):
     max_steps: int = 40                     # PBVS steps / IBVS-hybrid iterations x 10 before giving up
     backoff_height: float = 0.05            # re-acquisition: move up this much when the block is lost (m)
     max_lost: int = 4                       # consecutive looks without the block before giving up
+    survey: bool = True                     # a block never seen, or lost and not re-acquired: survey the table
+                                            # (task.survey) and approach it from the map; false: the thesis's way
     lift_height: float = 0.10               # lift after the grasp (m)
     place_xy: Optional[List[float]] = None  # put the block down at this table position (base x, y; m)
     place_clearance: float = 0.004          # release the block this far above the table (m)

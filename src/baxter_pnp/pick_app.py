@@ -28,6 +28,7 @@ from baxter_pnp.task.eye import BlockQuery, Eye
 from baxter_pnp.task.motion import Motion
 from baxter_pnp.task.outputs import Outputs
 from baxter_pnp.task.session import FATAL_REASONS, RobotSession, TaskFailure, failure_reason
+from baxter_pnp.task.survey import Survey
 from baxter_pnp.transforms import invert, pose_error
 
 DEFAULT_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'pick_square.yaml')
@@ -48,6 +49,8 @@ class PickApplication:
                                   config.estimator, self.session.table),
                        views_dir=self.outputs.views_dir if session_config.save_views else None)
         self.rules = target.TargetRules.of(config, self.session.table)
+        self.survey = Survey(self.session, self.motion, self.eye, session_config.table_area) if config.survey else None
+        self.surveyed = False           # this cycle's survey was made
         self.result = pick.PickResult(success=False, mode=config.mode)
         self.results = []
         self.T_base_last_block = None   # the block's last believed pose (tracking, search)
@@ -63,6 +66,7 @@ class PickApplication:
         for cycle in range(1, cycles + 1):
             self.result = pick.PickResult(success=False, mode=self.config.mode)
             self.T_base_last_block = self.approach = None
+            self.surveyed = False
             session.clock = None
             try:
                 if not session.connected:
@@ -132,7 +136,8 @@ class PickApplication:
 
     def look_for_block(self, after_stamp=None):
         """A look that finds the block whole: re-centres on a block cut by the image border and, when it is
-        lost, looks from above where it was last seen, or higher (up to ``max_lost`` times in a row)."""
+        lost, looks from above where it was last seen, or higher (up to ``max_lost`` times in a row). A block
+        never seen, or lost that long, is searched for by a survey of the table (once a cycle, ``survey``)."""
         c = self.config
         for lost in range(c.max_lost + 1):
             self.session.check_deadline()
@@ -144,27 +149,58 @@ class PickApplication:
                 rospy.logwarn('pick: block cut by the image border: re-centring on it')
                 T_next = target.recentred(look.T_base_gripper, look.T_base_camera, look.T_base_block,
                                           c.backoff_height / 2)
+            elif self.survey is not None and not self.surveyed and (self.T_base_last_block is None
+                                                                    or lost == c.max_lost):
+                self.survey_for_block(look)
+                T_view, _ = target.search_pose(look.T_base_gripper, 0, c.backoff_height, self.view_of_last_block(look),
+                                               self.reachable)
+                self.motion.move_to_pose(T_view, 'view the block the survey found')
+                return self.look_for_block(rospy.get_time())
             else:
                 if lost == c.max_lost:
                     break
                 T_next = self.search_pose(look, lost)
             self.motion.move_to_pose(T_next, 're-acquire')
             after_stamp = rospy.get_time()
-        raise TaskFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves'
-                          % (c.colour, c.shape, c.max_lost))
+        raise TaskFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves%s'
+                          % (c.colour, c.shape, c.max_lost, ' and a survey' if self.surveyed else ''))
+
+    def survey_for_block(self, look):
+        """Survey the table (``task.survey``) and take the nearest block of the target's shape and colour (not
+        one already placed) as the last-seen block; TaskFailure('block_lost') when the table has none."""
+        c = self.config
+        rospy.logwarn('pick: the %s %s is not in view: surveying the table' % (c.colour, c.shape))
+        self.surveyed = True
+        found = self.survey.run(lambda observation, T_base_camera: target.believable(
+            observation, T_base_camera, self.rules), look.frame.camera)
+        block = found.nearest(look.T_base_gripper[:2, 3], c.shape, c.colour)
+        if block is None:
+            raise TaskFailure('block_lost', 'no %s %s on the table (survey of %d views, %d other block(s) seen)'
+                              % (c.colour, c.shape, len(self.survey.viewpoints(look.frame.camera)), len(found)))
+        rospy.loginfo('pick: the survey found the %s %s at %s mm' % (c.colour, c.shape,
+                                                                     np.round(1000 * block.position, 1).tolist()))
+        self.T_base_last_block = block.T_base_block
+
+    def view_of_last_block(self, look):
+        """The velocity laws' view pose over the last-seen block (``pick.view_pose``), None if none was seen."""
+        if self.T_base_last_block is None:
+            return None
+        c = self.config
+        T_reference = look.T_base_gripper if self.approach is None else self.approach.T_reference
+        T_hover = pick.hover_pose(self.T_base_last_block, c, T_reference)
+        return pick.view_pose(self.T_base_last_block, T_hover, self.session.hand_eye.T_gripper_camera,
+                              look.frame.camera, c)
+
+    def reachable(self, T_base_gripper):
+        """True if the URDF's IK solves ``T_base_gripper`` from the arm's current angles."""
+        session = self.session
+        return session.kinematics.ik(T_base_gripper, seed=session.limb.joint_positions()) is not None
 
     def search_pose(self, look, lost):
         """``task.target.search_pose`` from the view pose of the velocity laws over the last-seen block."""
-        c, session = self.config, self.session
-        T_view = None
-        if self.T_base_last_block is not None:
-            T_reference = look.T_base_gripper if self.approach is None else self.approach.T_reference
-            T_hover = pick.hover_pose(self.T_base_last_block, c, T_reference)
-            T_view = pick.view_pose(self.T_base_last_block, T_hover, session.hand_eye.T_gripper_camera,
-                                    look.frame.camera, c)
-        q = session.limb.joint_positions()
-        T_next, over_block = target.search_pose(look.T_base_gripper, lost, c.backoff_height, T_view,
-                                                lambda T: session.kinematics.ik(T, seed=q) is not None)
+        c = self.config
+        T_next, over_block = target.search_pose(look.T_base_gripper, lost, c.backoff_height,
+                                                self.view_of_last_block(look), self.reachable)
         if over_block:
             rospy.logwarn('pick: block not in view (re-acquisition %d of %d): looking from above where it was '
                           'last seen, at %s mm' % (lost + 1, c.max_lost,
@@ -377,11 +413,13 @@ def parse_args(argv):
     parser.add_argument('--start-pose', help='start pose name in config/start_poses.yaml (down, angled)')
     parser.add_argument('--estimator', choices=['sqp', 'ippe', 'sqpnp'])
     parser.add_argument('--place', metavar='X,Y', help='place the block at this table position (base, m)')
+    parser.add_argument('--no-survey', dest='survey', action='store_false', default=None,
+                        help="never survey the table: a block not in view is searched for as the thesis did")
     cli.add_session_arguments(parser, DEFAULT_CONFIG, cycles=True)
     return parser.parse_args(argv)
 
 
-TASK_KEYS = ('mode', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'estimator')
+TASK_KEYS = ('mode', 'shape', 'side_length', 'colour', 'step_fraction', 'start_pose', 'estimator', 'survey')
 
 
 def build_config(args, private_params=None):

@@ -30,6 +30,8 @@ class SessionConfig(Parameters):
                                             # table_top_z; read when validated
     speed_ratio: float = 0.3                # position-mode speed ratio of the arm (robot default 0.3)
     table_top_z: float = -0.15              # table top height in base (m): the estimator's plane, the safety floor
+    table_area: List[float] = field(default_factory=lambda: [0.3, -0.75, 1.2, 0.75])   # the table top's extent
+                                            # in base: x_min, y_min, x_max, y_max (m); what a survey looks at
     tip_margin: float = 0.005               # the gripper tip never goes lower than this above the table (m); the
                                             # paddles reach 3.5 mm beyond the tip plane
     waypoint_spacing: float = 0.02          # IK along straight Cartesian paths: waypoints this far apart (m)
@@ -49,6 +51,9 @@ class SessionConfig(Parameters):
                               'robot_wait_timeout', 'cycles', 'next_block_timeout', 'tip_margin')
         self.require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
         self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
+        self.require(len(self.table_area) == 4 and all(map(math.isfinite, self.table_area))
+                     and self.table_area[0] < self.table_area[2] and self.table_area[1] < self.table_area[3],
+                     'table_area', 'must be [x_min, y_min, x_max, y_max] in metres')
         self.require(self.max_recoveries >= 0, 'max_recoveries', 'must be >= 0')
         if self.camera_calibration is not None:     # read now: a wrong file is a bad parameter, before connecting
             self.calibrated_camera()

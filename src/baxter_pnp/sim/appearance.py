@@ -142,13 +142,15 @@ def form_image(render_bgr, config, camera, rng=None, gain=1.0, vignette=None):
     None), rounded and clipped."""
     scale = np.float32(config.exposure * gain) * np.asarray(config.white_balance[::-1], np.float32)   # B, G, R
     value = render_bgr.astype(np.float32)
-    value *= scale
-    if vignette is not None:
-        value *= vignette[:, :, None]
+    if np.any(scale != 1):         # x 1 changes nothing: skipped (the clean look)
+        value *= scale
+    if vignette is not None:       # (H, W), or (H, W, 3) repeated per channel: faster, same products
+        value *= vignette if vignette.ndim == 3 else vignette[:, :, None]
     if rng is not None and (config.noise_std > 0 or config.colour_noise_std > 0):
-        value += _noise_bank(render_bgr.shape, config.noise_std, config.colour_noise_std).draw(rng)
+        _noise_bank(render_bgr.shape, config.noise_std, config.colour_noise_std).add_to(value, rng)
     value += np.float32(0.5)
-    return np.clip(value, 0, 255, out=value).astype(np.uint8)
+    np.minimum(value, np.float32(255), out=value)       # np.clip's result, faster
+    return np.maximum(value, np.float32(0), out=value).astype(np.uint8)
 
 
 class NoiseBank:
@@ -167,8 +169,20 @@ class NoiseBank:
 
     def draw(self, rng):
         """(H, W, C) float32 noise for one frame, chosen and shifted with ``rng``."""
+        index, dy, dx = self._choose(rng)
+        return np.roll(self.frames[index], (dy, dx), axis=(0, 1))
+
+    def add_to(self, value, rng):
+        """Add ``draw(rng)`` to ``value`` (H, W, C) float32 in place, without the shifted copy."""
+        index, dy, dx = self._choose(rng)
+        frame, height, width = self.frames[index], value.shape[0], value.shape[1]
+        for rows, source_rows in ((slice(dy, None), slice(0, height - dy)), (slice(0, dy), slice(height - dy, None))):
+            for cols, source_cols in ((slice(dx, None), slice(0, width - dx)), (slice(0, dx), slice(width - dx, None))):
+                value[rows, cols] += frame[source_rows, source_cols]
+
+    def _choose(self, rng):
         index, dy, dx = rng.integers(self.FRAMES), rng.integers(self.frames.shape[1]), rng.integers(self.frames.shape[2])
-        return np.roll(self.frames[index], (int(dy), int(dx)), axis=(0, 1))
+        return int(index), int(dy), int(dx)
 
 
 _noise_bank = functools.lru_cache(maxsize=8)(NoiseBank)

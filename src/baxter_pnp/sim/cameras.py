@@ -57,6 +57,11 @@ def sensor_window(width, height, half_resolution=False):
     return camera_module.SensorWindow.centred(*SENSOR_SIZE, width, height, 2 if half_resolution else 1)
 
 
+def image_model(name, width, height, half_resolution=False):
+    """The model of the images camera ``name`` delivers in mode ``width`` x ``height`` (``OpenCamera.model``)."""
+    return sensor_model(name).windowed(sensor_window(width, height, half_resolution))
+
+
 class CameraBank:
     """``/cameras/list|open|close`` semantics: known cameras, allowed modes, at most two open (thread-safe)."""
 

@@ -47,14 +47,16 @@ from baxter_pnp.kinematics import DEFAULT_URDF, ArmKinematics
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot import sdk
 from baxter_pnp.ros_image import bgr_to_msg
-from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, RESOLUTION_HALF_CONTROL, CameraBank, parse_camera_option
+from baxter_pnp.sim import fastmath
+from baxter_pnp.sim.cameras import (MAX_OPEN_CAMERAS, RESOLUTION_HALF_CONTROL, CameraBank, camera_settings_problem,
+                                     image_model, parse_camera_option)
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
 from baxter_pnp.sim.render import RENDERERS, RendererUnavailable
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, SceneError, load_faults, load_scene
 from baxter_pnp.sim.world import SimWorld
-from baxter_pnp.transforms import invert, matrix_to_pose_msg, pose_msg_to_matrix
+from baxter_pnp.transforms import invert, pose_msg_to_matrix
 
 NODE_NAME = 'fake_baxter'
 SOFTWARE_VERSION = '1.2.0'
@@ -262,6 +264,7 @@ class FakeBaxterNode:
         self.pacer = RealTimePacer(real_time_factor)
         self._schedules = [(RateSchedule(RATES_HZ[key]), getattr(self, '_publish_' + key)) for key in RATES_HZ]
         for name, width, height, fps in open_cameras:
+            world.prepare_camera(image_model(name, width, height))
             self.cameras.open(name, width, height, fps, now=0.0)
             world.start_fault_clock()
 
@@ -440,7 +443,7 @@ class FakeBaxterNode:
     def _publish_endpoint_state(self, header):
         header.frame_id = sdk.BASE_FRAME
         message = msg.EndpointState(header=header)
-        matrix_to_pose_msg(self.world.link_pose(ENDPOINT_LINK), message.pose)
+        fastmath.matrix_to_pose_msg(self.world.link_pose(ENDPOINT_LINK), message.pose)
         twist = self.world.link_twist(ENDPOINT_LINK)
         (message.twist.linear.x, message.twist.linear.y, message.twist.linear.z,
          message.twist.angular.x, message.twist.angular.y, message.twist.angular.z) = (float(v) for v in twist)
@@ -464,7 +467,8 @@ class FakeBaxterNode:
 
     def _link_poses(self, links):
         """{link: T_base_link} from the world (``base`` is the identity)."""
-        return {link: np.eye(4) if link == sdk.BASE_FRAME else self.world.link_pose(link) for link in links}
+        poses = self.world.link_poses([link for link in links if link != sdk.BASE_FRAME])
+        return {link: np.eye(4) if link == sdk.BASE_FRAME else poses[link] for link in links}
 
     def _publish_tf(self, header):
         poses = self._link_poses({link for joint in self._moving_joints for link in joint})
@@ -495,7 +499,7 @@ class FakeBaxterNode:
 
     @staticmethod
     def _transform(header, parent, child, T_parent_child):
-        pose = matrix_to_pose_msg(T_parent_child, Pose())
+        pose = fastmath.matrix_to_pose_msg(T_parent_child, Pose())
         message = TransformStamped()
         message.header.stamp, message.header.frame_id, message.child_frame_id = header.stamp, parent, child
         message.transform.translation.x = pose.position.x
@@ -507,7 +511,7 @@ class FakeBaxterNode:
     def _publish_object_poses(self, header):
         header.frame_id = sdk.BASE_FRAME
         self._pub['object_poses'].publish(PoseArray(
-            header=header, poses=[matrix_to_pose_msg(T, Pose()) for T in self.world.object_poses()]))
+            header=header, poses=[fastmath.matrix_to_pose_msg(T, Pose()) for T in self.world.object_poses()]))
 
     def _publish_respawns(self):
         """Latch the world's respawn count (ground truth, ``scene.respawn``) when it changed; log each respawn."""
@@ -525,13 +529,17 @@ class FakeBaxterNode:
     # ------------------------------------------------------------------ cameras
     def _open_camera(self, request):
         settings = request.settings
-        now = self.world.time               # one instant for the frame grid and the fault clock
         half = any(c.id == RESOLUTION_HALF_CONTROL and c.value > 0 for c in settings.controls)
+        if not camera_settings_problem(request.name, settings.width, settings.height, settings.fps, half):
+            # here, not at the first frame, where it would stall the loop
+            self.world.prepare_camera(image_model(request.name, settings.width, settings.height, half))
+        now = self.world.time               # one instant for the frame grid and the fault clock
         err, reason = self.cameras.open(request.name, settings.width, settings.height, settings.fps, now, half)
         if err:
             rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
             self.world.start_fault_clock(now)
+            self._image_publishers(request.name)      # advertised now, not by the loop at the first frame
         return srv.OpenCameraResponse(err)
 
     def _image_publishers(self, name):

@@ -24,7 +24,7 @@ Chessboards (``scene.boards``) are visual only, like the occluder: a white box (
 so the physics, the range sensor and the blocks (``object_poses``, block indices) are those of the scene
 without them.
 
-``scene.respawn`` (soak tests) is acted out here too: a block that was lifted and has been put down and
+``scene.respawn`` (soak tests) is acted out too (``sim.respawner``): a block that was lifted and has been put down and
 let go is moved to the next of its respawn poses (``respawns`` counts the moves).
 """
 import math
@@ -38,10 +38,11 @@ import pybullet as p
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, arm_joint_names, body_indices,
                                    link_pose)
-from baxter_pnp.sim import appearance
+from baxter_pnp.sim import appearance, fastmath
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
 from baxter_pnp.sim.render import make_renderer
-from baxter_pnp.transforms import from_xyz_quat, make_transform, to_xyz_quat
+from baxter_pnp.sim.respawner import Respawner
+from baxter_pnp.transforms import make_transform, to_xyz_quat
 
 ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
 ARM_ACCELERATION = 3.0          # rad/s^2 of the position set-point profile
@@ -60,10 +61,6 @@ FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
 TABLE_THICKNESS = 0.04          # m
 BOARD_COLOR = {'paper': (0.95, 0.95, 0.95), 'ink': (0.05, 0.05, 0.05)}   # chessboard, matte (no specular)
 BOARD_INK_LIFT = 2e-5           # m: the black squares above the white board's top (one depth, no z-fighting)
-RESPAWN_LIFT = 0.03             # m: a block counts as lifted once its underside is this far above the table top
-RESPAWN_TIP_CLEARANCE = 0.08    # m: every gripper tip must be this far above the block's top before a respawn
-RESPAWN_STILL_SPEED = 0.01      # m/s: a block whose points all move slower than this is at rest (resting
-                                # blocks jitter at up to ~3 mm/s in PyBullet, a sliding or rocking one is faster)
 
 
 class SimWorld(PyBulletClientOwner):
@@ -83,6 +80,7 @@ class SimWorld(PyBulletClientOwner):
         self._robot = p.loadURDF(urdf_path or DEFAULT_URDF, useFixedBase=True,
                                  flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=self._client)
         self._joints, self._links = body_indices(self._robot, self._client)
+        self._pose_cache = {}        # {link: T_base_link} of the current state (cleared by every state change)
         self._published = ['head_pan', 'l_gripper_l_finger_joint', 'l_gripper_r_finger_joint',
                            *arm_joint_names('left'), 'r_gripper_l_finger_joint', 'r_gripper_r_finger_joint',
                            *arm_joint_names('right')]
@@ -106,8 +104,9 @@ class SimWorld(PyBulletClientOwner):
             **{body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
                for body, obj in zip(self._blocks, scene.objects)},
             **board_meshes}, textures=self._textures)
-        self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance
-        self._respawner = None if scene.respawn is None else _Respawner(self, scene.respawn)
+        self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance (H, W, 3)
+        self._remap_maps = {}        # (true camera, ideal camera) -> fixed-point cv2.remap maps
+        self._respawner = None if scene.respawn is None else Respawner(self, scene.respawn)
 
     @property
     def renderer_name(self):
@@ -232,6 +231,7 @@ class SimWorld(PyBulletClientOwner):
             if nudge is not None and nudge.moves_during(self.fault_time(), self.fault_time() + self.time_step):
                 self._push(nudge)
             p.stepSimulation(physicsClientId=self._client)
+            self._pose_cache.clear()
             for gripper in self._grippers.values():
                 gripper.update(self.time_step)
             self.time += self.time_step
@@ -303,7 +303,22 @@ class SimWorld(PyBulletClientOwner):
 
     def link_pose(self, link):
         """T_base_link (4x4) of a URDF link frame, e.g. 'left_gripper', 'left_hand', 'left_hand_camera'."""
-        return link_pose(self._robot, self._link(link), self._client)
+        return self.link_poses((link,))[link]
+
+    def link_poses(self, links):
+        """{link: T_base_link (4x4, a copy)} of URDF link frames; read from PyBullet once per state (one forward
+        kinematics for all the links not read yet)."""
+        cache = self._pose_cache
+        missing = [link for link in dict.fromkeys(links) if link not in cache]
+        indices = [self._link(link) for link in missing]
+        if -1 in indices:                 # the base: not a link state
+            for link, index in zip(missing, indices):
+                cache[link] = link_pose(self._robot, index, self._client)
+        elif missing:
+            states = p.getLinkStates(self._robot, indices, computeForwardKinematics=True, physicsClientId=self._client)
+            for link, state in zip(missing, states):
+                cache[link] = fastmath.from_xyz_quat(state[4], state[5])
+        return {link: cache[link].copy() for link in links}
 
     def link_twist(self, link):
         """(6,) [linear velocity (m/s); angular velocity (rad/s)] of the link frame's origin, in base."""
@@ -318,7 +333,7 @@ class SimWorld(PyBulletClientOwner):
         poses = []
         for body, obj in zip(self._blocks, self.scene.objects):
             position, quaternion = p.getBasePositionAndOrientation(body, physicsClientId=self._client)
-            poses.append(from_xyz_quat(position, quaternion) @ make_transform(None, [0, 0, obj.height / 2]))
+            poses.append(fastmath.from_xyz_quat(position, quaternion) @ make_transform(None, [0, 0, obj.height / 2]))
         return poses
 
     def place_object(self, index, xy, yaw):
@@ -355,19 +370,42 @@ class SimWorld(PyBulletClientOwner):
         look = self.scene.appearance
         if rng is None and gain == 1.0 and not look.scales_intensity():
             return image
+        return appearance.form_image(image, look, camera, rng, gain, self._vignette(camera))
+
+    def prepare_camera(self, camera):
+        """Compute now what the first frame of ``camera`` needs (ideal camera, remap maps, vignetting, the noise bank:
+        0.1-0.3 s, which would stall the loop). No PyBullet call: a service thread may call it."""
+        self._true_camera(camera)
+        self._vignette(camera)
+        look = self.scene.appearance
+        if look.noise_std > 0 or look.colour_noise_std > 0:
+            appearance._noise_bank((camera.height, camera.width, 3), look.noise_std, look.colour_noise_std)
+
+    def _vignette(self, camera):
+        """(H, W, 3) vignetting gain of ``camera`` under ``scene.appearance`` (None without vignetting), cached."""
         key = (camera.width, camera.height, tuple(camera.K.ravel()))
         if key not in self._vignettes:
-            self._vignettes[key] = appearance.vignetting_gain(camera, look.vignetting)
-        return appearance.form_image(image, look, camera, rng, gain, self._vignettes[key])
+            gain_map = appearance.vignetting_gain(camera, self.scene.appearance.vignetting)
+            self._vignettes[key] = None if gain_map is None else np.repeat(gain_map[:, :, None], 3, axis=2)
+        return self._vignettes[key]
 
-    def _render(self, link, camera):
-        """Noise-free uint8 BGR image of ``camera`` at ``link`` (see ``render_camera``)."""
+    def _true_camera(self, camera):
+        """(ideal pinhole camera to render, fixed-point cv2.remap maps from it to the true camera) of ``camera``."""
         error = self.scene.camera_error
         K_true = camera.K.copy()
         K_true[0, 0] *= error.focal_scale
         K_true[1, 1] *= error.focal_scale
         true_camera = CameraModel(camera.width, camera.height, K_true, camera.D)
         ideal = self._ideal_camera(true_camera)
+        key = (true_camera.width, true_camera.height, tuple(K_true.ravel()), tuple(camera.D), tuple(ideal.K.ravel()))
+        if key not in self._remap_maps:     # fixed-point maps: what cv2.remap makes of float maps each call (same image)
+            self._remap_maps[key] = cv2.convertMaps(*true_camera.rendering_maps(ideal), cv2.CV_16SC2)
+        return ideal, self._remap_maps[key]
+
+    def _render(self, link, camera):
+        """Noise-free uint8 BGR image of ``camera`` at ``link`` (see ``render_camera``)."""
+        error = self.scene.camera_error
+        ideal, maps = self._true_camera(camera)
         T_base_camera = self.link_pose(link) @ error.T_published_true
         n = self.scene.supersampling
         if n == 1:
@@ -375,7 +413,7 @@ class SimWorld(PyBulletClientOwner):
         else:          # n x n samples a pixel, averaged: each pixel integrates the light over its area
             bgr = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height)),
                              (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
-        return cv2.remap(bgr, *true_camera.rendering_maps(ideal), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return cv2.remap(bgr, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ideal_camera(self, true_camera):
         """Pinhole camera (no distortion, the true focal lengths) whose image covers every ray of ``true_camera``."""
@@ -411,6 +449,7 @@ class _ArmMotion:
         self.target = self.setpoint = self.setpoint_velocity = np.zeros(7)
         self.max_speed = 0.3 * self.velocity_limits
         self.velocity_command = np.zeros(7)
+        self._sent = None               # the position command the motors hold (resending it changes nothing)
 
     def _measured(self):
         states = p.getJointStates(self._world._robot, self.indices, physicsClientId=self._world._client)
@@ -449,7 +488,9 @@ class _ArmMotion:
         q = np.where(np.isnan(values), q, np.clip(values, self.lower, self.upper))
         for index, angle in zip(self.indices, q):
             p.resetJointState(self._world._robot, index, angle, 0.0, physicsClientId=self._world._client)
+        self._world._pose_cache.clear()
         self.mode, self.target, self.setpoint, self.setpoint_velocity = 'position', q, q, np.zeros(7)
+        self._sent = None
         self.update(0.0)
 
     def update(self, dt):
@@ -462,9 +503,14 @@ class _ArmMotion:
             p.setJointMotorControlArray(world._robot, self.indices, p.VELOCITY_CONTROL,
                                         targetVelocities=velocities.tolist(), forces=[ARM_MOTOR_FORCE] * 7,
                                         physicsClientId=world._client)
+            self._sent = None
             return
         self.setpoint, self.setpoint_velocity = profile_step(self.setpoint, self.setpoint_velocity, self.target,
                                                              self.max_speed, ARM_ACCELERATION, dt)
+        command = (self.setpoint.tobytes(), self.setpoint_velocity.tobytes(), self.max_speed.tobytes())
+        if command == self._sent:          # an arm at rest: the motors already hold this command
+            return
+        self._sent = command
         for index, position, velocity, max_speed in zip(self.indices, self.setpoint, self.setpoint_velocity,
                                                          self.max_speed):
             p.setJointMotorControl2(world._robot, index, p.POSITION_CONTROL, targetPosition=position,
@@ -555,7 +601,9 @@ class _Gripper:
         """Low-pass the fingers' opening speed (time constant ``GRIPPER_SPEED_FILTER``) after a step of ``dt`` s;
         after a missed close, collide with the blocks again once the reopening fingers are clear of them."""
         alpha = dt / (GRIPPER_SPEED_FILTER + dt)
-        self.speed += alpha * (self._opening()[1].mean() - self.speed)
+        (_, speed_l, _, _), (_, speed_r, _, _) = p.getJointStates(self._world._robot, self.indices,
+                                                                  physicsClientId=self._world._client)
+        self.speed += alpha * ((speed_l - speed_r) / 2 - self.speed)     # _opening()[1].mean(), in floats
         if self.phantom and not self.closing and not self._inside_a_block():
             self._collide_with_blocks(True)
         if self.slipping and self.gripping and self.target < self._opening()[0].mean() - 1e-4:
@@ -618,55 +666,6 @@ class _Gripper:
             'gripping': self.gripping,
             'missed': self.closing and not moving and closed and not (touched[0] | touched[1]),
         }
-
-
-class _Respawner:
-    """Acts out a ``scene.Respawn``: watches its block after every step and re-places it when it is due.
-
-    The block is *lifted* once its underside (axis-aligned bounding box) rises ``RESPAWN_LIFT`` above the
-    table top. After that, it is due for a respawn when, for ``respawn.delay`` seconds of simulated time
-    without a break, it touches the table at rest (no point of it faster than ``RESPAWN_STILL_SPEED``,
-    bounded by |v| + |w| R, R its top face's circumradius) and every gripper tip (``<side>_gripper``
-    origin) is ``RESPAWN_TIP_CLEARANCE`` above the block's top: the finger pads end 5 mm below that
-    origin, so neither finger can touch the block then, whether the gripper is open or closed (it has
-    been let go). Then it is put at rest on the table at the next pose (cycling) and ``count`` grows.
-    """
-
-    def __init__(self, world, respawn):
-        self._world = world
-        self.respawn = respawn
-        self.body = world._blocks[respawn.object]
-        self.radius = world.scene.objects[respawn.object].model.circumradius     # m
-        self.count = 0
-        self.lifted = False
-        self._settled_since = None        # simulated time (s) since which the block has been down and let go
-
-    def update(self):
-        world, client = self._world, self._world._client
-        (_, _, bottom), (_, _, top) = p.getAABB(self.body, physicsClientId=client)
-        table_z = world.scene.table.top_z
-        if not self.lifted:
-            self.lifted = bottom >= table_z + RESPAWN_LIFT
-            return
-        if not self._settled(top):
-            self._settled_since = None
-        elif self._settled_since is None:
-            self._settled_since = world.time
-        elif world.time - self._settled_since >= self.respawn.delay - 1e-9:
-            x, y, yaw = self.respawn.poses[self.count % len(self.respawn.poses)]
-            world.place_object(self.respawn.object, (x, y), yaw)
-            self.count += 1
-            self.lifted, self._settled_since = False, None
-
-    def _settled(self, top):
-        """True if the block rests on the table with every gripper tip clear above its ``top`` (z, m)."""
-        world, client = self._world, self._world._client
-        linear, angular = p.getBaseVelocity(self.body, physicsClientId=client)
-        if np.linalg.norm(linear) + np.linalg.norm(angular) * self.radius >= RESPAWN_STILL_SPEED:
-            return False
-        if not p.getContactPoints(self.body, world._table, physicsClientId=client):
-            return False
-        return all(world.link_pose(f'{side}_gripper')[2, 3] >= top + RESPAWN_TIP_CLEARANCE for side in world._grippers)
 
 
 def _prism_mesh(top_xy, height):

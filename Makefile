@@ -21,7 +21,7 @@ STAMP_VENV := $(VENV)/.stamp-requirements
 GENERATED := $(ROOT)/src/baxter_pnp/_generated/baxter_core_msgs/__init__.py
 PTH := $(VENV)/lib/python3.11/site-packages/baxter_pnp.pth
 
-.PHONY: all setup test demo demo-perception bench-perception bench-render bench-hand-eye clean
+.PHONY: all setup test demo demo-perception bench-perception bench-render bench-hand-eye bench-real-time clean
 
 all: setup
 
@@ -69,6 +69,10 @@ bench-render: setup
 # Hand-eye calibration on the fake vs its ground truth, and picks with / without it; README "Calibration on the robot".
 bench-hand-eye: setup
 	$(PY) scripts/bench_hand_eye.py
+
+# The fake's real-time factor while the camera streams and a pick runs (paced); README "Fake Baxter".
+bench-real-time: setup
+	$(PY) scripts/bench_real_time.py
 
 clean:
 	rm -rf $(ROOT)/src/baxter_pnp/_generated out .pytest_cache

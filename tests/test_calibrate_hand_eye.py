@@ -1,5 +1,5 @@
 """calibrate_hand_eye.py end to end: a real rosmaster, the real fake Baxter on ``config/scenes/hand_eye.yaml``
-(a 9x6 chessboard on the table; the true camera mount 7.8 mm / 2.1 deg off the URDF's that tf publishes), the
+(a 9x6 chessboard on the table; the true camera mount 11.2 mm / 2.5 deg off the URDF's that tf publishes), the
 real calibration task. Judged on the scene's ``camera_error`` (the ground truth the application never reads)
 and on the fake's ground-truth block and endpoint poses.
 """

@@ -20,12 +20,12 @@ import json
 import os
 import time
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 import rospy
 
-from baxter_pnp import board_views, calibration, hand_eye, robot
+from baxter_pnp import board_views, calibration, hand_eye, robot, view
 from baxter_pnp.params import ParameterError, Parameters
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.task import cli
@@ -148,19 +148,16 @@ class HandEyeRun:
         (the start view is one), in a short order from the arm's pose. [T_base_gripper]"""
         c, session = self.config, self.session
         T_gripper_camera = session.hand_eye.T_gripper_camera
-        clearance = self.hand_clearance(camera)
+        clearance = view.hand_clearance_of(session.kinematics, T_gripper_camera, camera)
         plan = []
         candidates = board_views.candidate_views(T_base_board, c.pattern, c.square, count=c.views,
                                                  distances=c.distances, max_tilt_deg=c.max_tilt_deg,
                                                  max_roll_deg=c.max_roll_deg, seed=c.seed, camera=camera,
                                                  clearance_px=clearance)
-        rejected = {'out of view': 0, 'unsafe': 0, 'no IK': 0}
+        rejected = {'unsafe': 0, 'no IK': 0}     # the candidates all see the board clear of the fingers
         for T_base_camera in candidates:
             if len(plan) == c.views - 1:
                 break
-            if not board_views.board_in_view(T_base_camera, T_base_board, camera, c.pattern, c.square, clearance):
-                rejected['out of view'] += 1
-                continue
             T_base_gripper = T_base_camera @ invert(T_gripper_camera)
             try:
                 session.safety.check_cartesian_target(T_base_gripper)
@@ -187,11 +184,11 @@ class HandEyeRun:
         for k, T_base_gripper in enumerate(plan, start=1):
             self.session.check_deadline()
             self.motion.move_to_pose(T_base_gripper, 'viewpoint %d of %d' % (k, len(plan)))
-            view = self.take_view('view_%02d' % k, T_base_board)
-            if view is None:
+            taken = self.take_view('view_%02d' % k, T_base_board)
+            if taken is None:
                 rospy.logwarn('calibrate: viewpoint %d: the board is not found in the image; skipped' % k)
             else:
-                views.append(view)
+                views.append(taken)
         return views
 
     def take_view(self, name, T_base_board):
@@ -215,10 +212,10 @@ class HandEyeRun:
             T_camera_board = invert(T_base_hand @ session.hand_eye.T_hand_camera) @ T_base_board
             corners = oriented_corners(corners, camera.project(
                 (T_camera_board[:3, :3] @ self.object_points.T).T + T_camera_board[:3, 3]))
-        view = hand_eye.BoardView(T_base_hand, corners, name)
+        board_view = hand_eye.BoardView(T_base_hand, corners, name)
         rospy.loginfo('calibrate: %s: board found at %.3f s, hand at %s mm' % (
             name, frame.stamp, np.round(1000 * T_base_hand[:3, 3], 1).tolist()))
-        return _Taken(view, camera)
+        return _Taken(board_view, camera)
 
     def board_in_base(self, taken):
         """The board's pose in base from one view through the current mount (the plan's centre)."""
@@ -228,12 +225,6 @@ class HandEyeRun:
         rospy.loginfo('calibrate: board at %s mm in base, normal %s' % (
             np.round(1000 * T_base_board[:3, 3], 1).tolist(), np.round(T_base_board[:3, 2], 3).tolist()))
         return T_base_board
-
-    def hand_clearance(self, camera):
-        from baxter_pnp import view
-        T_camera_gripper = invert(self.session.hand_eye.T_gripper_camera)
-        solids = [solid.moved(T_camera_gripper) for solid in self.session.kinematics.hand_solids()]
-        return view.hand_clearance_px(camera, solids)
 
     def check_board_still(self, first):
         """TaskFailure('board_moved') when the start view's corners are no longer where they were."""
@@ -274,12 +265,10 @@ class HandEyeRun:
         return result
 
 
-class _Taken:
+class _Taken(NamedTuple):
     """A view and the camera model of its frame."""
-    __slots__ = ('view', 'camera')
-
-    def __init__(self, view, camera):
-        self.view, self.camera = view, camera
+    view: hand_eye.BoardView
+    camera: object              # camera.CameraModel
 
 
 # ==================================================================================== entry point

@@ -368,5 +368,4 @@ def hand_camera_setup(kinematics, camera):
     ``kinematics``: the URDF's camera mount and ``view.hand_clearance_px`` of its open fingers."""
     from baxter_pnp import view
     T_gripper_camera = kinematics.relative(f'{kinematics.side}_gripper', f'{kinematics.side}_hand_camera')
-    solids = [solid.moved(invert(T_gripper_camera)) for solid in kinematics.hand_solids()]
-    return T_gripper_camera, view.hand_clearance_px(camera, solids)
+    return T_gripper_camera, view.hand_clearance_of(kinematics, T_gripper_camera, camera)

@@ -39,6 +39,13 @@ def ray_hits(origin, directions, solid):
     return exit_ >= np.maximum(entry, 0.0)
 
 
+def hand_clearance_of(kinematics, T_gripper_camera, camera):
+    """``hand_clearance_px`` of ``camera`` mounted at ``T_gripper_camera`` (its pose in the gripper frame, 4x4 m)
+    on the arm of ``kinematics`` (an ``ArmKinematics``: the URDF's open fingers)."""
+    T_camera_gripper = np.linalg.inv(T_gripper_camera)
+    return hand_clearance_px(camera, [solid.moved(T_camera_gripper) for solid in kinematics.hand_solids()])
+
+
 def hand_clearance_px(camera, hand_solids_camera):
     """(H, W) float32 map: each pixel's distance (pixels) to the nearest pixel where the hand hides the scene.
 

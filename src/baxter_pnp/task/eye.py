@@ -17,7 +17,7 @@ from sensor_msgs.msg import Image
 from baxter_pnp import perception, robot, view
 from baxter_pnp.models import Plane, table_plane_in_camera
 from baxter_pnp.ros_image import bgr_to_msg
-from baxter_pnp.transforms import invert, matrix_to_pose_msg, to_xyz_quat
+from baxter_pnp.transforms import matrix_to_pose_msg, to_xyz_quat
 
 DEBUG_IMAGE_TOPIC = '/baxter_pnp/debug_image'
 TARGET_POSE_TOPIC = '/baxter_pnp/target_pose'
@@ -100,9 +100,8 @@ class Eye:
         open fingers, ray-cast from the URDF's gripper solids through the hand-eye transform), once per model."""
         key = (camera.width, camera.height, camera.K.tobytes(), camera.D.tobytes())
         if key not in self._hand_clearance:
-            T_camera_gripper = invert(self.session.hand_eye.T_gripper_camera)
-            solids = [solid.moved(T_camera_gripper) for solid in self.session.kinematics.hand_solids()]
-            self._hand_clearance[key] = view.hand_clearance_px(camera, solids)
+            self._hand_clearance[key] = view.hand_clearance_of(self.session.kinematics,
+                                                               self.session.hand_eye.T_gripper_camera, camera)
             rospy.loginfo('%s: the open fingers hide %.1f %% of the %dx%d image'
                           % (self.session.log_name, 100.0 * np.mean(self._hand_clearance[key] == 0),
                              camera.width, camera.height))

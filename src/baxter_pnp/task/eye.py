@@ -60,7 +60,7 @@ class Eye:
         self._publish = publish
         if publish:
             import tf2_ros
-            self._debug_pub = rospy.Publisher(DEBUG_IMAGE_TOPIC, Image, queue_size=1)
+            self._debug_pub = rospy.Publisher(DEBUG_IMAGE_TOPIC, Image, queue_size=1, latch=True)   # a late viewer sees the last look
             self._target_pub = rospy.Publisher(TARGET_POSE_TOPIC, PoseStamped, queue_size=1, latch=True)
             self._tf = tf2_ros.TransformBroadcaster()
 

@@ -13,7 +13,7 @@ APT_PACKAGES := ros-core python3-rospy python3-rostest python3-rosunit python3-r
 	python3-std-msgs ros-std-msgs python3-std-srvs ros-std-srvs python3-geometry-msgs ros-geometry-msgs \
 	python3-sensor-msgs ros-sensor-msgs python3-rosgraph-msgs python3-tf2-msgs ros-tf2-msgs \
 	python3-tf2-ros python3-yaml python3-venv python3-dev librostest-dev \
-	python3-visualization-msgs ros-visualization-msgs \
+	python3-visualization-msgs ros-visualization-msgs python3-rosbag python3-roslz4 \
 	libegl1 libegl-mesa0 libgl1-mesa-dri
 
 STAMP_APT := $(ROOT)/.stamp-apt

@@ -1,5 +1,6 @@
 #!/usr/bin/python3
-"""Detect coloured blocks in image files and print their 3D pose (see baxter_pnp.detect_cli)."""
+"""Detect coloured blocks in image files and recorded runs (rosbags) and print their 3D pose (see
+baxter_pnp.detect_cli; replaying a bag: docs/perception.md)."""
 import os
 import sys
 

@@ -11,6 +11,7 @@ as ``image_geometry`` reads it: region of interest and binning applied. ROS is o
 ``to_camera_info``.
 """
 import functools
+import numbers
 import os
 import types
 from dataclasses import dataclass, field
@@ -135,8 +136,9 @@ class CameraModel:
                 _matrix_field(d, key, rows, cols)
         if K[0, 0] == 0 or K[1, 1] == 0:
             raise ValueError(f'camera YAML: camera_matrix has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
-        return cls(int(d['image_width']), int(d['image_height']), K, D.ravel(),
-                   name=str(d.get('camera_name', 'left_hand_camera')))
+        width = _integer_field(d['image_width'], 'camera YAML: image_width')    # > 0: checked by the model
+        height = _integer_field(d['image_height'], 'camera YAML: image_height')
+        return cls(width, height, K, D.ravel(), name=str(d.get('camera_name', 'left_hand_camera')))
 
     def to_dict(self):
         """``camera_calibration_parsers`` dictionary (R = identity, P = [K | 0] for a monocular camera)."""
@@ -157,8 +159,13 @@ class CameraModel:
     def from_yaml(cls, path):
         """Camera from a ``camera_calibration_parsers`` YAML file, or from a CameraInfo message as
         ``rostopic echo`` prints it (keys ``K``, ``D``, ``roi``, ...: read as ``from_camera_info``)."""
-        with open(path) as f:
-            d = yaml.safe_load(f)
+        try:
+            with open(path) as f:
+                d = yaml.safe_load(f)
+        except UnicodeDecodeError:
+            raise ValueError(f'camera YAML {path}: not a text file') from None
+        except yaml.YAMLError as error:
+            raise ValueError(f'camera YAML {path}: not valid YAML: {error}') from None
         if not isinstance(d, dict):
             raise ValueError(f'camera YAML {path}: not a mapping')
         try:
@@ -183,7 +190,10 @@ class CameraModel:
         and binning give the delivered image: size ``roi`` (or ``width`` x ``height``) / binning, principal
         point ``(c - roi offset) / binning``, focal lengths / binning (a Baxter hand camera at 640x400 sends
         the full-sensor K with roi offset (320, 200)). An empty ``D`` means no distortion; a leading ``/`` of
-        ``frame_id`` is dropped (tf2 frame names have none). ValueError naming the bad field.
+        ``frame_id`` is dropped (tf2 frame names have none). ValueError naming the bad field: non-finite ``K``,
+        ``D``, ``R`` or ``P``, a non-positive focal length, or an ROI larger than the sensor (``roi`` size over
+        ``width`` x ``height`` times binning: the message's size is the sensor's by the message definition, the
+        delivered image's as Baxter sends it; both satisfy this bound).
         """
         model = msg.distortion_model or DISTORTION_MODEL
         if model != DISTORTION_MODEL:
@@ -192,6 +202,10 @@ class CameraModel:
             raise ValueError(f'CameraInfo: K must have 9 elements, got {len(msg.K)}')
         if len(msg.D) not in (0, 5):
             raise ValueError(f'CameraInfo: D must have 5 elements for plumb_bob, got {len(msg.D)}')
+        for key, size in (('R', 9), ('P', 12)):
+            values = getattr(msg, key)
+            if len(values) != size or not np.all(np.isfinite(np.asarray(values, dtype=float))):
+                raise ValueError(f'CameraInfo: {key} must be {size} finite numbers, got {list(values)}')
         K = np.array(msg.K, dtype=float).reshape(3, 3)
         D = np.array(msg.D, dtype=float) if len(msg.D) else np.zeros(5)
         binning_x, binning_y = max(1, int(msg.binning_x)), max(1, int(msg.binning_y))
@@ -200,6 +214,10 @@ class CameraModel:
         width, height = (msg.width, msg.height) if full_image else (roi.width, roi.height)
         if not full_image and (roi.width == 0 or roi.height == 0):
             raise ValueError(f'CameraInfo: roi {roi.x_offset},{roi.y_offset} {roi.width}x{roi.height} is not an image')
+        if not full_image and msg.width and msg.height and (roi.width > msg.width * binning_x
+                                                            or roi.height > msg.height * binning_y):
+            raise ValueError(f'CameraInfo: roi {roi.width}x{roi.height} is larger than the sensor '
+                             f'({msg.width}x{msg.height} at binning {binning_x}x{binning_y})')
         K[0, 2] -= roi.x_offset
         K[1, 2] -= roi.y_offset
         K[0] /= binning_x
@@ -288,14 +306,43 @@ class SensorWindow:
 
 
 def _camera_info_from_dict(d):
-    """A CameraInfo-shaped namespace of a ``rostopic echo`` mapping (missing fields as the message's defaults)."""
+    """A CameraInfo-shaped namespace of a ``rostopic echo`` mapping (missing fields as the message's defaults);
+    ValueError naming a field that is not a list of numbers or a non-negative integer."""
     roi = d.get('roi') or {}
     header = d.get('header') or {}
+    if not isinstance(roi, dict) or not isinstance(header, dict):
+        raise ValueError('CameraInfo: roi and header must be mappings')
+
+    def count(mapping, key, prefix=''):
+        return _integer_field(mapping.get(key, 0), f'CameraInfo: {prefix}{key}', minimum=0)
     return types.SimpleNamespace(
-        width=int(d.get('width', 0)), height=int(d.get('height', 0)), K=list(d['K']), D=list(d.get('D') or []),
-        distortion_model=d.get('distortion_model', ''), binning_x=int(d.get('binning_x', 0)),
-        binning_y=int(d.get('binning_y', 0)), header=types.SimpleNamespace(frame_id=str(header.get('frame_id', ''))),
-        roi=types.SimpleNamespace(**{k: int(roi.get(k, 0)) for k in ('x_offset', 'y_offset', 'width', 'height')}))
+        width=count(d, 'width'), height=count(d, 'height'), K=_number_list(d, 'K', None), D=_number_list(d, 'D', []),
+        R=_number_list(d, 'R', [0.0] * 9), P=_number_list(d, 'P', [0.0] * 12),
+        distortion_model=d.get('distortion_model', ''), binning_x=count(d, 'binning_x'),
+        binning_y=count(d, 'binning_y'), header=types.SimpleNamespace(frame_id=str(header.get('frame_id', ''))),
+        roi=types.SimpleNamespace(**{k: count(roi, k, 'roi.') for k in ('x_offset', 'y_offset', 'width', 'height')}))
+
+
+def _number_list(d, key, default):
+    """``d[key]`` as a list of floats (``default`` when absent and not None); ValueError naming ``key`` otherwise."""
+    values = default if d.get(key) is None else d[key]
+    if values is None:
+        raise ValueError(f'CameraInfo: missing field {key!r}')
+    try:
+        return [float(v) for v in values]
+    except (TypeError, ValueError):
+        raise ValueError(f'CameraInfo: {key} must be a list of numbers, got {values!r}') from None
+
+
+def _integer_field(value, what, minimum=None):
+    """``value`` as an int (an integral float is accepted), or ValueError saying ``what`` must be an integer (at
+    least ``minimum``, if given)."""
+    if isinstance(value, bool) or not (isinstance(value, numbers.Integral)
+                                       or (isinstance(value, float) and value.is_integer())):
+        raise ValueError(f'{what} must be an integer, got {value!r}')
+    if minimum is not None and value < minimum:
+        raise ValueError(f'{what} must be at least {minimum}, got {value}')
+    return int(value)
 
 
 def load_default_camera():
@@ -304,14 +351,20 @@ def load_default_camera():
 
 
 def _matrix_field(d, key, rows, cols):
-    """(rows, cols) array of a ``{rows, cols, data}`` YAML field, or ValueError naming ``key``."""
+    """(rows, cols) array of finite numbers of a ``{rows, cols, data}`` YAML field, or ValueError naming ``key``."""
     value = d[key]
-    if not isinstance(value, dict) or 'data' not in value:
-        raise ValueError(f'camera YAML: {key} must be a mapping with rows, cols and data')
+    if not isinstance(value, dict) or not isinstance(value.get('data'), list):
+        raise ValueError(f'camera YAML: {key} must be a mapping with rows, cols and a data list')
     if (value.get('rows'), value.get('cols')) != (rows, cols) or len(value['data']) != rows * cols:
         raise ValueError(f'camera YAML: {key} must be {rows}x{cols}, got rows={value.get("rows")}, '
                          f'cols={value.get("cols")} with {len(value["data"])} values')
-    return np.array(value['data'], dtype=float).reshape(rows, cols)
+    try:
+        matrix = np.array(value['data'], dtype=float).reshape(rows, cols)
+    except (TypeError, ValueError):
+        raise ValueError(f'camera YAML: {key} data must be numbers, got {value["data"]}') from None
+    if not np.all(np.isfinite(matrix)):
+        raise ValueError(f'camera YAML: {key} must be finite, got {value["data"]}')
+    return matrix
 
 
 RENDERING_MAP_SPACING = 8    # px between the exactly undistorted samples of a rendering map

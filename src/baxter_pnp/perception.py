@@ -45,7 +45,12 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     ``side`` and ``height`` (m) describe the block model; ``shape``/``colour`` restrict the detections
     (None = any). ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
     Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed).
+    ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
+    size = vision.validate_image(image_bgr).shape[:2]
+    if size != (camera.height, camera.width):
+        raise ValueError(f'observe_blocks: the image is {size[1]}x{size[0]} but the camera model is '
+                         f'{camera.width}x{camera.height}: scale or crop the model to the image first')
     detections = vision.detect(image_bgr, vision_config,
                                colours=None if colour is None else [colour],
                                shapes=None if shape is None else [shape])

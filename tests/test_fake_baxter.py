@@ -25,7 +25,7 @@ from baxter_pnp.kinematics import load_start_poses
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.ros_image import msg_to_bgr
 from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
-from baxter_pnp.sim.node import ik_stages, parse_joint_command
+from baxter_pnp.sim.arm import ik_stages, parse_joint_command
 from baxter_pnp.transforms import (from_xyz_quat, invert, matrix_to_pose_msg, pose_msg_to_matrix,
                                    rotation_angle_between)
 import fake_baxter_client
@@ -181,7 +181,7 @@ def test_camera_opened_at_boot_publishes_at_its_fps_and_the_fake_runs_at_its_mea
 def test_boot_is_fast_and_announced(robot):
     assert robot.process.boot_seconds < 5.0
     assert 'fake_baxter ready' in robot.process.log()
-    assert rospy.get_param('/rethink/software_version') == '1.2.0'
+    assert rospy.get_param('/rethink/software_version') == '1.2.0.57'     # a four-part build string, as a robot's
     assert rospy.get_param('/use_sim_time') is True
     assert '<robot' in rospy.get_param('/robot_description')
 

@@ -8,7 +8,8 @@ height below the ``block`` frame of docs/ARCHITECTURE.md (top-face centre).
 Arms: position commands run through a velocity- and acceleration-limited set-point profile tracked by
 stiff PyBullet position motors (the arm moves smoothly at <= ``speed_ratio`` x the URDF velocity limit,
 never teleports, and holds still); velocity commands use velocity motors. Gravity acts on everything;
-the motors' large force limit plays the part of Baxter's gravity compensation. Grippers: each finger
+the motors' large force limit plays the part of Baxter's gravity compensation (``sim.arm_motion``). The head: the
+``head_pan`` joint is a speed-limited position motor (``command_head_pan``). Grippers: each finger
 is a prismatic position motor with the commanded force and speed, the two geared together like the
 real gripper's single drive; a grasp holds by friction and finger force only (nothing ties the block
 to the gripper).
@@ -39,14 +40,13 @@ from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, arm_joint_names, body_indices,
                                    link_pose)
 from baxter_pnp.sim import appearance, fastmath
+from baxter_pnp.sim.arm_motion import ARM_MOTOR_FORCE, ArmMotion
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
 from baxter_pnp.sim.render import make_renderer
 from baxter_pnp.sim.respawner import Respawner
 from baxter_pnp.transforms import make_transform, to_xyz_quat
 
-ARM_MOTOR_FORCE = 1000.0        # N m: stiff joint servos (also carry the arm's weight, like gravity compensation)
-ARM_ACCELERATION = 3.0          # rad/s^2 of the position set-point profile
-ARM_POSITION_GAIN = 0.2         # PyBullet motor position gain (fraction of the error corrected per step)
+HEAD_MAX_SPEED = 1.5            # rad/s: the head's pan speed at speed ratio 1 (the URDF's limit is no real one)
 FINGER_TRAVEL = 0.020833        # m, per finger, closed (0 %) to open (100 %)
 GRIPPER_MAX_FORCE = 35.0        # N per finger at force_percent = 100
 GRIPPER_MAX_SPEED = 0.04        # m/s per finger at velocity_percent = 100
@@ -85,10 +85,11 @@ class SimWorld(PyBulletClientOwner):
                            *arm_joint_names('left'), 'r_gripper_l_finger_joint', 'r_gripper_r_finger_joint',
                            *arm_joint_names('right')]
         self._published_indices = [self._joints[name] for name in self._published]
-        self._arms = {side: _ArmMotion(self, side) for side in ('left', 'right')}
+        self._arms = {side: ArmMotion(self, side) for side in ('left', 'right')}
         self._grippers = {side: _Gripper(self, side) for side in ('left', 'right')}
-        p.setJointMotorControl2(self._robot, self._joints['head_pan'], p.POSITION_CONTROL, targetPosition=0.0,
-                                force=ARM_MOTOR_FORCE, physicsClientId=self._client)
+        head = p.getJointInfo(self._robot, self._joints['head_pan'], physicsClientId=self._client)
+        self.head_pan_limits = (head[8], head[9])     # rad
+        self.command_head_pan(0.0, HEAD_MAX_SPEED)
         self._table = self._make_table(scene.table)
         self._blocks = [self._make_block(obj) for obj in scene.objects]
         if scene.faults.occluder is not None:
@@ -282,6 +283,21 @@ class SimWorld(PyBulletClientOwner):
         """Teleport the named joints to ``positions`` (rad) at rest and hold them there (start pose / resets)."""
         self._arms[side].teleport(positions)
 
+    # ------------------------------------------------------------------------------------ head
+    def command_head_pan(self, angle, max_speed):
+        """Turn the head toward ``angle`` (rad, clipped to ``head_pan_limits``) at <= ``max_speed`` rad/s; returns
+        the clipped target."""
+        target = float(np.clip(angle, *self.head_pan_limits))
+        p.setJointMotorControl2(self._robot, self._joints['head_pan'], p.POSITION_CONTROL, targetPosition=target,
+                                force=ARM_MOTOR_FORCE, maxVelocity=max(float(max_speed), 1e-6),
+                                physicsClientId=self._client)
+        return target
+
+    def head_pan(self):
+        """(angle rad, velocity rad/s) of the head pan joint."""
+        angle, velocity, _, _ = p.getJointState(self._robot, self._joints['head_pan'], physicsClientId=self._client)
+        return angle, velocity
+
     # ------------------------------------------------------------------------------------ grippers
     def command_gripper(self, side, position_percent, force_percent=40.0, velocity_percent=50.0):
         """Move the fingers to ``position_percent`` (0 closed .. 100 open) with ``force_percent`` of
@@ -431,115 +447,6 @@ class SimWorld(PyBulletClientOwner):
             size = (high - low + 1).astype(int)
             self._ideal_cameras[key] = CameraModel(size[0], size[1], K)
         return self._ideal_cameras[key]
-
-
-class _ArmMotion:
-    """Joint motion of one arm: a velocity/acceleration-limited set-point profile (position mode) or
-    velocity targets (velocity mode), sent to PyBullet motors every step."""
-
-    def __init__(self, world, side):
-        self._world = world
-        self.names = arm_joint_names(side)
-        self.indices = [world._joints[name] for name in self.names]
-        infos = [p.getJointInfo(world._robot, i, physicsClientId=world._client) for i in self.indices]
-        self.lower = np.array([info[8] for info in infos])
-        self.upper = np.array([info[9] for info in infos])
-        self.velocity_limits = np.array([info[11] for info in infos])
-        self.mode = 'position'
-        self.target = self.setpoint = self.setpoint_velocity = np.zeros(7)
-        self.max_speed = 0.3 * self.velocity_limits
-        self.velocity_command = np.zeros(7)
-        self._sent = None               # the position command the motors hold (resending it changes nothing)
-
-    def _measured(self):
-        states = p.getJointStates(self._world._robot, self.indices, physicsClientId=self._world._client)
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
-
-    def _vector(self, values, what):
-        unknown = set(values) - set(self.names)
-        if unknown:
-            raise ValueError(f'{what}: unknown joints {sorted(unknown)} (expected {self.names})')
-        return np.array([values.get(name, np.nan) for name in self.names], dtype=float)
-
-    def _enter_position_mode(self):
-        if self.mode != 'position':
-            q, v = self._measured()
-            self.mode, self.target, self.setpoint = 'position', q, q
-            self.setpoint_velocity = np.clip(v, -self.max_speed, self.max_speed)
-
-    def command_positions(self, targets, speed_ratio):
-        values = self._vector(targets, 'command_arm_positions')
-        self._enter_position_mode()
-        self.max_speed = float(np.clip(speed_ratio, 0.0, 1.0)) * self.velocity_limits
-        self.target = np.where(np.isnan(values), self.target, np.clip(values, self.lower, self.upper))
-
-    def command_velocities(self, velocities):
-        values = np.nan_to_num(self._vector(velocities, 'command_arm_velocities'))
-        self.mode = 'velocity'
-        self.velocity_command = np.clip(values, -self.velocity_limits, self.velocity_limits)
-
-    def hold(self):
-        q, _ = self._measured()
-        self.mode, self.target, self.setpoint, self.setpoint_velocity = 'position', q, q, np.zeros(7)
-
-    def teleport(self, positions):
-        values = self._vector(positions, 'set_arm_positions')
-        q, _ = self._measured()
-        q = np.where(np.isnan(values), q, np.clip(values, self.lower, self.upper))
-        for index, angle in zip(self.indices, q):
-            p.resetJointState(self._world._robot, index, angle, 0.0, physicsClientId=self._world._client)
-        self._world._pose_cache.clear()
-        self.mode, self.target, self.setpoint, self.setpoint_velocity = 'position', q, q, np.zeros(7)
-        self._sent = None
-        self.update(0.0)
-
-    def update(self, dt):
-        """Advance the set-point by ``dt`` seconds and command the motors."""
-        world = self._world
-        if self.mode == 'velocity':
-            q, _ = self._measured()
-            step = max(dt, world.time_step)       # stop on a joint limit instead of driving into it
-            velocities = np.clip(self.velocity_command, (self.lower - q) / step, (self.upper - q) / step)
-            p.setJointMotorControlArray(world._robot, self.indices, p.VELOCITY_CONTROL,
-                                        targetVelocities=velocities.tolist(), forces=[ARM_MOTOR_FORCE] * 7,
-                                        physicsClientId=world._client)
-            self._sent = None
-            return
-        self.setpoint, self.setpoint_velocity = profile_step(self.setpoint, self.setpoint_velocity, self.target,
-                                                             self.max_speed, ARM_ACCELERATION, dt)
-        command = (self.setpoint.tobytes(), self.setpoint_velocity.tobytes(), self.max_speed.tobytes())
-        if command == self._sent:          # an arm at rest: the motors already hold this command
-            return
-        self._sent = command
-        for index, position, velocity, max_speed in zip(self.indices, self.setpoint, self.setpoint_velocity,
-                                                         self.max_speed):
-            p.setJointMotorControl2(world._robot, index, p.POSITION_CONTROL, targetPosition=position,
-                                    targetVelocity=velocity, force=ARM_MOTOR_FORCE, positionGain=ARM_POSITION_GAIN,
-                                    velocityGain=1.0, maxVelocity=max_speed, physicsClientId=world._client)
-
-
-def profile_step(position, velocity, target, max_speed, acceleration, dt):
-    """One ``dt`` step of the arm's set-point toward ``target`` (7 joints), synchronised like a robot's
-    joint interpolator: the desired velocity is proportional to the remaining error, so the joints move
-    along the straight joint-space line and arrive together; each joint stays within its ``max_speed``
-    and slows in time to stop on the target (``acceleration``); the velocity vector changes by at most
-    ``acceleration * dt`` (largest joint), keeping its direction while it speeds up. Returns (position,
-    velocity)."""
-    error = target - position
-    distance = np.abs(error)
-    if distance.max() <= 1e-9:
-        return target.copy(), np.zeros_like(velocity)
-    moving = distance > 1e-12
-    safe = np.where(moving, distance, 1.0)
-    gain = np.min(np.where(moving, np.minimum(max_speed / safe, np.sqrt(2.0 * acceleration / safe)), np.inf))
-    change = gain * error - velocity
-    largest = np.abs(change).max()
-    if largest > acceleration * dt:
-        change *= acceleration * dt / largest
-    velocity = velocity + change
-    new_position = position + velocity * dt
-    arrived = (np.sign(target - new_position) != np.sign(error)) | ~moving
-    return np.where(arrived, target, new_position), np.where(arrived, 0.0, velocity)
 
 
 class _Gripper:

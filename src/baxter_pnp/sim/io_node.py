@@ -1,0 +1,91 @@
+"""The fake Baxter's digital and analog I/O and navigators, the ROS edge (``baxter_interface.DigitalIO``,
+``AnalogIO``, ``Navigator``).
+
+Publishes each component's state (``/robot/digital_io/<name>/state`` DigitalIOState, ``/robot/analog_io/<name>/state``
+AnalogIOState), the aggregates (``/robot/digital_io_states``, ``/robot/analog_io_states``), each navigator's
+``/robot/navigators/<name>_navigator/state`` and ``/robot/navigators_states``, at ``RATE_HZ`` and at once when a value
+changes; takes output commands on ``/robot/digital_io/command`` and ``/robot/analog_io/command``. The hand range
+sensors' analog inputs follow the world's range sensors (mm). Tests press buttons (and turn wheels) through the
+fake's own topics ``/fake_baxter/set_digital_input`` (DigitalOutputCommand) and ``/fake_baxter/set_analog_input``
+(AnalogOutputCommand): what a person's hand does on the robot. The components are ``sim.io_board``'s.
+"""
+import math
+
+import rospy
+
+from baxter_pnp.msgs import msg
+from baxter_pnp.sim.io_board import ARMS, NAVIGATORS, RANGE_OUT_OF_RANGE_MM, IOBoard, IOCommandError
+
+RATE_HZ = 10.0                  # simulated Hz of the periodic state publications (changes go out at once)
+DIGITAL_COMMAND_TOPIC = '/robot/digital_io/command'
+ANALOG_COMMAND_TOPIC = '/robot/analog_io/command'
+SET_DIGITAL_INPUT_TOPIC = '~set_digital_input'       # the fake's own: a test presses a button
+SET_ANALOG_INPUT_TOPIC = '~set_analog_input'
+
+
+class IONode:
+    """I/O topics around an ``IOBoard``; ``range_m(side)`` is the hand range sensor's distance (m, inf if none)."""
+
+    def __init__(self, range_m, queued):
+        self.board = IOBoard()
+        self._range_m = range_m
+        self._digital = {name: rospy.Publisher(f'/robot/digital_io/{name}/state', msg.DigitalIOState, queue_size=10)
+                         for name in self.board.digital}
+        self._analog = {name: rospy.Publisher(f'/robot/analog_io/{name}/state', msg.AnalogIOState, queue_size=10)
+                        for name in self.board.analog}
+        self._navigators = {name: rospy.Publisher(f'/robot/navigators/{name}_navigator/state', msg.NavigatorState,
+                                                  queue_size=10) for name in NAVIGATORS}
+        self._all = {'digital': rospy.Publisher('/robot/digital_io_states', msg.DigitalIOStates, queue_size=10),
+                     'analog': rospy.Publisher('/robot/analog_io_states', msg.AnalogIOStates, queue_size=10),
+                     'navigators': rospy.Publisher('/robot/navigators_states', msg.NavigatorStates, queue_size=10)}
+        subscriptions = ((DIGITAL_COMMAND_TOPIC, msg.DigitalOutputCommand, self.board.command),
+                         (ANALOG_COMMAND_TOPIC, msg.AnalogOutputCommand, self.board.command),
+                         (SET_DIGITAL_INPUT_TOPIC, msg.DigitalOutputCommand, self.board.set_input),
+                         (SET_ANALOG_INPUT_TOPIC, msg.AnalogOutputCommand, self.board.set_input))
+        for topic, message_type, apply in subscriptions:
+            rospy.Subscriber(topic, message_type, queued(self._applier(topic, apply)), queue_size=100)
+
+    def schedules(self):
+        """[(rate Hz, publish(header))] of the periodic publications."""
+        return [(RATE_HZ, self._publish_all)]
+
+    def tick(self, now):
+        """Publish at once the components (and navigators) whose value changed."""
+        changed = self.board.take_changed()
+        if changed:
+            self._publish(changed, rospy.Time.from_sec(now), aggregates=False)
+
+    @staticmethod
+    def _applier(topic, apply):
+        def on_message(message):
+            try:
+                apply(message.name, message.value)
+            except IOCommandError as error:
+                rospy.logerr(f'{topic} ignored: {error}')
+        return on_message
+
+    def _publish_all(self, header):
+        for side in ARMS:
+            distance_m = self._range_m(side)
+            self.board.set_input(f'{side}_hand_range', distance_m * 1000.0 if math.isfinite(distance_m)
+                                 else RANGE_OUT_OF_RANGE_MM)
+        self.board.take_changed()
+        self._publish(set(self.board.digital) | set(self.board.analog), header.stamp, aggregates=True)
+
+    def _publish(self, names, stamp, aggregates):
+        board = self.board
+        digital = {name: msg.DigitalIOState(state=int(board.digital[name]), isInputOnly=board.is_input_only(name))
+                   for name in board.digital if name in names}
+        analog = {name: msg.AnalogIOState(timestamp=stamp, value=board.analog[name],
+                                          isInputOnly=board.is_input_only(name))
+                  for name in board.analog if name in names}
+        navigators = {name: msg.NavigatorState(**board.navigator(name)) for name in board.navigators_of(names)}
+        for publishers, messages in ((self._digital, digital), (self._analog, analog),
+                                     (self._navigators, navigators)):
+            for name, message in messages.items():
+                publishers[name].publish(message)
+        if aggregates:
+            self._all['digital'].publish(msg.DigitalIOStates(names=list(digital), states=list(digital.values())))
+            self._all['analog'].publish(msg.AnalogIOStates(names=list(analog), states=list(analog.values())))
+            self._all['navigators'].publish(msg.NavigatorStates(names=list(navigators),
+                                                                states=list(navigators.values())))

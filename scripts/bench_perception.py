@@ -1,5 +1,6 @@
 #!/usr/bin/python3
-"""Perception benchmark: detection rate, pose/depth/orientation error and time per frame, per estimator."""
+"""Perception benchmark: detection rate, vertex, pose, depth and orientation error and time per frame, per estimator,
+on the project renderer's datasets and on an independent renderer's (``--datasets``)."""
 import os
 import sys
 

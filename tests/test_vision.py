@@ -229,6 +229,12 @@ THIN_SIDE_FACE_VIEWS = [
 ]
 
 
+def polygon_area(vertices):
+    """Area (px^2) of the polygon ``vertices`` (n, 2)."""
+    u, v = np.asarray(vertices, float).T
+    return 0.5 * abs(float(np.dot(u, np.roll(v, -1)) - np.dot(v, np.roll(u, -1))))
+
+
 def _render_view(camera, view, seed):
     shape, side, colour, rotvec, position = view
     spec = synthetic.BlockSpec(shape, side, 0.02, COLOURS_BGR[colour])
@@ -253,7 +259,13 @@ def test_thin_side_face_does_not_pull_an_edge_out(camera, config, view):
         image, truth = _render_view(camera, view, seed)
         [detection] = vision.detect(image, config, colours=[view[2]])
         errors = vertex_errors(detection.vertices_px, truth)
-        assert errors.mean() < 0.35 and errors.max() < 0.8, errors
+        # The strips' darkening is assumed (0.5), not seen: the square's two faces darken by 0.47 and 0.68 (the
+        # renderer's shading), so their widths (1.5 and 2.3 px) come out 0.4 px too wide and 0.2 px too narrow,
+        # and the corner between them moves by up to ~1 px, along the edges; hence the max bound. What the
+        # previous refinement did, strips taken for top face, puts edges out: the area bound catches it.
+        assert errors.mean() < 0.35 and errors.max() < 1.1, errors
+        perimeter = np.linalg.norm(truth - np.roll(truth, 1, axis=0), axis=1).sum()
+        assert detection.area_px < polygon_area(truth) + 0.5 * perimeter, (detection.area_px, polygon_area(truth))
 
 
 def test_top_face_under_a_lower_light(camera, config):

@@ -66,6 +66,10 @@ MIN_AREA_PERIMETER_RATIO = 1e-3
 # SLSQP: stop when the objective (half the squared pixel error, px^2) changes by less than this (1e-7 m on exact data).
 SQP_FTOL_PX2 = 1e-10
 SQP_MAX_ITERATIONS = 100
+# With a table plane, a pose whose top face is tilted more than this from the table's is refused: a block lying on
+# the table is level with it (to the plane's own error, a few degrees), while a flat 2:1 brick fitted with a square
+# model tilts it by 19-63 deg (the real cube photos).
+MAX_TILT_FROM_TABLE_RAD = math.radians(15.0)
 
 
 class PoseEstimationError(ValueError):
@@ -116,7 +120,7 @@ def estimate_pose(vertices_px, camera, model, method='sqp', table_plane=None, in
     towards the camera (the top face lies ``model.height`` above it; only its normal is used);
     ``initial``: previous pose (``PoseEstimate`` or 4x4 ``T_camera_object``) to start 'sqp' from.
     Returns a ``PoseEstimate``; raises ``PoseEstimationError`` for degenerate vertices or when no
-    solver gives a valid pose.
+    solver gives a valid pose (with a table plane: none level with it within ``MAX_TILT_FROM_TABLE_RAD``).
     """
     if method not in METHODS:
         raise ValueError(f'unknown pose method {method!r}; expected one of {METHODS}')
@@ -138,7 +142,7 @@ def estimate_pose(vertices_px, camera, model, method='sqp', table_plane=None, in
         except (cv2.error, np.linalg.LinAlgError, ValueError) as exc:
             failures.append(f'{name}: {exc}')
             continue
-        problem = _invalidity(R, t, observation, model)
+        problem = _invalidity(R, t, observation, model) or _off_the_table(R, table_normal)
         if problem is None:
             return _make_estimate(R, t, observation, model, name, table_normal if name == 'sqp' else None)
         failures.append(f'{name}: {problem}')
@@ -508,6 +512,17 @@ def _invalidity(R, t, observation, model):
     if residual > limit:
         return f'residual {residual:.3g} px exceeds {limit:.3g} px (polygon does not fit the model)'
     return None
+
+
+def _off_the_table(R, table_normal):
+    """Why the top face of rotation R cannot be lying on the table of normal ``table_normal`` (None: no table), or None."""
+    if table_normal is None:
+        return None
+    tilt = _angle_between(R[:, 2], table_normal)
+    if tilt <= MAX_TILT_FROM_TABLE_RAD:
+        return None
+    return (f'top face tilted {math.degrees(tilt):.0f} deg from the table (more than '
+            f'{math.degrees(MAX_TILT_FROM_TABLE_RAD):.0f}): not this block lying on the table')
 
 
 def _make_estimate(R, t, observation, model, method, table_normal):

@@ -1,16 +1,27 @@
-"""Perception benchmark (``make bench-perception``): renders its own ground-truth dataset, runs the
+"""Perception benchmark (``make bench-perception``): renders its own ground-truth datasets, runs the
 vision pipeline and every pose estimator on the same vertices, and prints the results side by side.
 
-Datasets (thesis camera, 640x480, lens distortion, lighting gradient, noise, blur, JPEG; blocks 2 cm thick
-so side faces show at oblique views):
+Two renderers draw the datasets. The project's own (``synthetic.py``; thesis camera, 640x480, lens distortion,
+lighting gradient, noise, blur, JPEG; blocks 2 cm thick so side faces show at oblique views):
 
 - ``mixed``: triangles to hexagons of every named colour, 30-60 mm sides, 0.10-0.40 m away, up to 35 deg tilt;
 - ``green40``: 40 mm green squares in the same range of poses (the acceptance set);
 - ``depth161``: a 40 mm green square seen straight on at 161 mm (the thesis's depth experiment), 56 renders.
 
-Errors are against the renderer's ground truth: position of the top-face centre (mm), depth (z, mm),
-orientation (deg, modulo the shape's symmetry). Times are per frame on one core (OpenCV and BLAS limited
-to one thread): ``detect`` for the vision pipeline, then each estimator's own time.
+A second, independent renderer (``render_independent.py``: rounded edges, rounded-over top rims, soft shading
+and shadows, a dim textured table, vignetting, pips, letters, grain and glare, 8x supersampling), the ``_r2`` sets:
+
+- ``green40_r2``: 40 mm green squares 0.13-0.40 m away, up to 35 deg tilt;
+- ``mixed_r2``: as ``mixed``;
+- ``dice_r2``: 16-25 mm dice (cubes) of the four colours, pips on every face, rounded edges, 15-60 px a side,
+  up to 40 deg tilt (two side faces often in view);
+- ``small_r2``: blocks of every shape and colour 15-25 px a side.
+
+Errors are against the renderer's ground truth (the top face's sharp corners, where its edge lines meet):
+vertex error (px, mean distance of each detected vertex to the nearest true one), position of the top-face
+centre (mm), depth (z, mm; signed mean = bias, positive = too far), orientation (deg, modulo the shape's
+symmetry). Times are per frame on one core (OpenCV and BLAS limited to one thread): ``detect`` for the vision
+pipeline, then each estimator's own time.
 """
 import argparse
 import csv
@@ -22,11 +33,20 @@ import numpy as np
 
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pose, synthetic, vision
+from baxter_pnp.bench import render_independent
 from baxter_pnp.transforms import make_transform
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
 ESTIMATORS = ('sqp', 'sqp+plane', 'ippe', 'sqpnp')
 BLOCK_HEIGHT = 0.02
+PROJECT_DATASETS = ('mixed', 'green40', 'depth161')
+R2_DATASETS = ('green40_r2', 'mixed_r2', 'dice_r2', 'small_r2')
+LABEL_CHARACTERS = 'ABCDEFGHKLMNPRSTUVXYZ2345789'
+# the blocks of green40_r2, mixed_r2 and small_r2: this fraction has rounded vertical edges of a radius in this
+# range (m), that fraction a rounded-over top rim (the silhouette then lies up to the bevel inside the sharp corners)
+R2_ROUNDED_FRACTION, R2_CORNER_RADIUS_M = 0.7, (0.0, 0.0015)
+R2_BEVELLED_FRACTION, R2_BEVEL_M = 0.6, (0.0003, 0.001)
+SIDE_PX_RANGES = {'dice_r2': (15.0, 60.0), 'small_r2': (15.0, 25.0)}   # mean projected side (px) of these sets
 
 
 def limit_to_one_core():
@@ -36,8 +56,13 @@ def limit_to_one_core():
 
 
 def make_dataset(kind, count, seed, camera):
-    """List of (BlockSpec, T_camera_block, colour name) for dataset ``kind``."""
+    """List of (block, T_camera_block, colour name) for dataset ``kind``: a ``synthetic.BlockSpec`` for the
+    project's renderer, a ``render_independent.Block`` for the ``_r2`` sets."""
+    if kind not in PROJECT_DATASETS + R2_DATASETS:
+        raise ValueError(f'unknown dataset {kind!r}; known: {", ".join(PROJECT_DATASETS + R2_DATASETS)}')
     rng = np.random.default_rng(seed)
+    if kind in R2_DATASETS:
+        return [_r2_sample(kind, rng, camera) for _ in range(count)]
     samples = []
     for _ in range(count):
         if kind == 'mixed':
@@ -58,6 +83,56 @@ def make_dataset(kind, count, seed, camera):
     return samples
 
 
+def _r2_sample(kind, rng, camera):
+    """One (``render_independent.Block``, T_camera_block, colour) of the ``_r2`` dataset ``kind``."""
+    colour = 'green' if kind == 'green40_r2' else str(rng.choice(sorted(COLOURS_BGR)))
+    albedo = np.clip(np.asarray(COLOURS_BGR[colour], float) * rng.uniform(0.85, 1.15, size=3), 0, 255)
+    albedo = tuple(albedo + rng.uniform(0.0, 0.2) * (albedo.mean() - albedo))          # a little less saturated
+    focal_px = camera.fx
+    if kind == 'dice_r2':
+        side = float(rng.uniform(0.016, 0.025))
+        white_pips = bool(rng.random() < 0.5)
+        marks = render_independent.Marks(pips=int(rng.integers(1, 7)), side_pips=True,
+                                         pip_bgr=(230, 230, 225) if white_pips else (25, 25, 25),
+                                         glare=float(rng.uniform(15, 50)) if rng.random() < 0.3 else 0.0)
+        block = render_independent.Block('square', side, side, albedo, corner_radius=side * rng.uniform(0.08, 0.15),
+                                         bevel=side * rng.uniform(0.05, 0.12), marks=marks)
+        distances, max_tilt = (focal_px * side / 60.0, focal_px * side / 15.0), 40.0
+    else:
+        if kind == 'green40_r2':
+            shape, side, distances = 'square', 0.040, (0.13, 0.40)
+        else:
+            shape, side = str(rng.choice(sorted(models.SHAPES))), float(rng.uniform(0.030, 0.060))
+            distances = (0.10, 0.40) if kind == 'mixed_r2' else (focal_px * side / 25.0, focal_px * side / 15.0)
+        letter_bgr = (20, 20, 20) if rng.random() < 0.5 else (235, 235, 235)
+        marks = render_independent.Marks(
+            label=str(rng.choice(list(LABEL_CHARACTERS))) if rng.random() < 0.25 else '', label_bgr=letter_bgr,
+            grain=float(rng.uniform(0.02, 0.08)) if rng.random() < 0.4 else 0.0,
+            glare=float(rng.uniform(15, 50)) if rng.random() < 0.3 else 0.0)
+        block = render_independent.Block(
+            shape, side, BLOCK_HEIGHT, albedo, marks=marks,
+            corner_radius=float(rng.uniform(*R2_CORNER_RADIUS_M)) if rng.random() < R2_ROUNDED_FRACTION else 0.0,
+            bevel=float(rng.uniform(*R2_BEVEL_M)) if rng.random() < R2_BEVELLED_FRACTION else 0.0)
+        max_tilt = 35.0
+    bounds = synthetic.BlockSpec(block.shape, block.side, block.height)       # its corners keep it in the image
+    for _ in range(100):
+        T = synthetic.random_block_pose(rng, distance_range=distances, max_tilt_deg=max_tilt, camera=camera,
+                                        block=bounds)
+        if kind not in SIDE_PX_RANGES or _within(side_px(camera, block.model, T), SIDE_PX_RANGES[kind]):
+            return block, T, colour
+    raise ValueError(f'{kind}: no pose gives sides of {SIDE_PX_RANGES[kind]} px')
+
+
+def side_px(camera, model, T_camera_block):
+    """Mean length (px) of the projected top-face sides of ``model`` at ``T_camera_block``."""
+    corners = camera.project(model.vertices @ T_camera_block[:3, :3].T + T_camera_block[:3, 3])
+    return float(np.mean(np.linalg.norm(np.roll(corners, -1, axis=0) - corners, axis=1)))
+
+
+def _within(value, bounds):
+    return bounds[0] <= value <= bounds[1]
+
+
 def _rotation_looking_down(yaw):
     """Block rotation in the camera frame with its top face squarely facing the camera, yawed by ``yaw`` (rad)."""
     from scipy.spatial.transform import Rotation
@@ -75,34 +150,49 @@ def orientation_error_deg(R_true, R_est, symmetry_angle):
     return float(np.degrees(best))
 
 
-def true_table_plane(T_camera_block):
-    """The table-top plane (the block's bottom face) in the camera frame, normal towards the block's top."""
+def true_table_plane(T_camera_block, height):
+    """The table-top plane (the bottom face of a block ``height`` m tall) in the camera frame, normal towards
+    the block's top."""
     normal = T_camera_block[:3, 2]
-    bottom_centre = T_camera_block[:3, 3] - BLOCK_HEIGHT * normal
+    bottom_centre = T_camera_block[:3, 3] - height * normal
     return models.Plane(normal, float(normal @ bottom_centre))
 
 
-def run_dataset(kind, samples, camera, config, seed):
-    """Render, detect and estimate every sample; returns one result dict per (sample, estimator)."""
+def run_dataset(kind, samples, camera, config, seed, crops=None):
+    """Render, detect and estimate every sample; returns one result dict per (sample, estimator).
+
+    ``crops``: a dict to fill with ``(kind, index) ->`` what ``save_worst`` draws of the frame.
+    """
+    render = render_independent.render_scene if kind in R2_DATASETS else synthetic.render_block_scene
     rng = np.random.default_rng(seed + 1)
     rows = []
     for index, (spec, T_true, colour) in enumerate(samples):
-        image, truths = synthetic.render_block_scene(camera, [(spec, T_true)], rng)
+        start = time.perf_counter()
+        image, truths = render(camera, [(spec, T_true)], rng)
+        render_ms = 1000.0 * (time.perf_counter() - start)
         start = time.perf_counter()
         detections = vision.detect(image, config)
         detect_ms = 1000.0 * (time.perf_counter() - start)
         target = vision.select_target(detections, spec.shape, colour, (camera.width, camera.height))
         base = {'dataset': kind, 'index': index, 'shape': spec.shape, 'colour': colour, 'side_m': spec.side,
-                'distance_m': float(np.linalg.norm(T_true[:3, 3])), 'detect_ms': detect_ms,
-                'detected': target is not None}
+                'distance_m': float(np.linalg.norm(T_true[:3, 3])), 'tilt_deg': _tilt_deg(T_true),
+                'render_ms': render_ms, 'detect_ms': detect_ms, 'detected': target is not None}
+        if kind in R2_DATASETS:
+            marks = spec.marks
+            base.update(corner_radius_mm=1000.0 * spec.corner_radius, bevel_mm=1000.0 * spec.bevel,
+                        marks=' '.join(name for name, present in (
+                            ('pips', marks.pips), ('letter', marks.label), ('grain', marks.grain),
+                            ('glare', marks.glare)) if present))
         if target is not None:
             base['vertex_err_px'] = _vertex_error_px(target.vertices_px, truths[0]['vertices_px'])
+        if crops is not None:
+            crops[(kind, index)] = _crop(image, truths[0]['vertices_px'], target, detections)
         model = models.model_for(spec.shape, spec.side, spec.height)
         for estimator in ESTIMATORS:
             row = dict(base, estimator=estimator)
             if target is not None:
                 method = estimator.split('+')[0]
-                plane = true_table_plane(T_true) if estimator.endswith('+plane') else None
+                plane = true_table_plane(T_true, spec.height) if estimator.endswith('+plane') else None
                 start = time.perf_counter()
                 try:
                     estimate = pose.estimate_pose(target.vertices_px, camera, model, method=method,
@@ -120,10 +210,73 @@ def run_dataset(kind, samples, camera, config, seed):
     return rows
 
 
+def _tilt_deg(T_camera_block):
+    """Angle (deg) between the block's +z and the camera's -z (0 = top face squarely towards the camera)."""
+    return float(np.degrees(np.arccos(np.clip(-T_camera_block[2, 2], -1.0, 1.0))))
+
+
 def _vertex_error_px(detected, true):
     """Mean distance (px) between detected vertices and the true ones, matched by nearest neighbour."""
     distances = np.linalg.norm(detected[:, None, :] - true[None, :, :], axis=2)
     return float(np.mean(distances.min(axis=1)))
+
+
+CROP_MARGIN_PX = 12
+
+
+def _crop(image, true_px, target, detections):
+    """What ``save_worst`` draws of a frame: the image around the true and target vertices (``image``, top-left
+    pixel ``origin``), ``true_px``, the target's vertices (None if missed), the other detections'
+    ``(label, vertices)``."""
+    h, w = image.shape[:2]
+    shown = true_px if target is None else np.vstack([true_px, target.vertices_px])
+    x0, y0 = np.clip(np.floor(shown.min(axis=0)).astype(int) - CROP_MARGIN_PX, 0, [w - 1, h - 1])
+    x1, y1 = np.clip(np.ceil(shown.max(axis=0)).astype(int) + CROP_MARGIN_PX + 1, [x0 + 1, y0 + 1], [w, h])
+    others = [('%s %s' % (d.shape, d.colour), d.vertices_px) for d in detections if d is not target]
+    return {'image': image[y0:y1, x0:x1].copy(), 'origin': np.array([x0, y0]), 'true_px': true_px,
+            'target_px': None if target is None else target.vertices_px, 'others': others}
+
+
+def save_worst(rows, crops, directory, count, zoom=4):
+    """Write crops (enlarged ``zoom`` times) of the ``count`` found targets with the largest vertex error
+    (``worst_*.png``) and of up to ``count`` missed ones (``missed_*.png``): truth in green, the target's vertices
+    in red, other detections in yellow with their shape and colour; ``worst.tsv`` lists them. Returns the paths."""
+    import cv2
+    frames = [r for r in rows if r['estimator'] == 'sqp' and (r['dataset'], r['index']) in crops]
+    found = sorted((r for r in frames if r['detected']), key=lambda r: -r['vertex_err_px'])[:count]
+    missed = [r for r in frames if not r['detected']][:count]
+    os.makedirs(directory, exist_ok=True)
+    paths, lines = [], ['file\tdataset\tindex\tshape\tcolour\tside_mm\tdistance_m\tvertex_err_px\t'
+                        'position_err_mm\tdepth_err_mm\tother detections']
+    for group, ranked in (('worst', found), ('missed', missed)):
+        for rank, row in enumerate(ranked):
+            crop = crops[(row['dataset'], row['index'])]
+            canvas = cv2.resize(crop['image'], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
+
+            def at(points):   # pixel centres of the enlarged crop, 4 fractional bits
+                return np.round(((points - crop['origin'] + 0.5) * zoom - 0.5) * 16).astype(np.int32)
+            for label, vertices in crop['others']:
+                cv2.polylines(canvas, [at(vertices)], True, (0, 255, 255), 1, cv2.LINE_AA, 4)
+                corner = tuple(int(c) for c in at(vertices).min(axis=0) // 16)
+                cv2.putText(canvas, label, corner, cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 255), 1, cv2.LINE_AA)
+            if crop['target_px'] is not None:
+                cv2.polylines(canvas, [at(crop['target_px'])], True, (0, 0, 255), 1, cv2.LINE_AA, 4)
+                for point in at(crop['target_px']):
+                    cv2.circle(canvas, tuple(int(c) for c in point), 3 * 16, (0, 0, 255), 1, cv2.LINE_AA, 4)
+            cv2.polylines(canvas, [at(crop['true_px'])], True, (0, 255, 0), 1, cv2.LINE_AA, 4)
+            for point in at(crop['true_px']):
+                cv2.circle(canvas, tuple(int(c) for c in point), 2 * 16, (0, 255, 0), -1, cv2.LINE_AA, 4)
+            name = '%s_%02d_%s_%03d.png' % (group, rank, row['dataset'], row['index'])
+            cv2.imwrite(os.path.join(directory, name), canvas)
+            paths.append(os.path.join(directory, name))
+            lines.append('\t'.join(str(v) for v in (
+                name, row['dataset'], row['index'], row['shape'], row['colour'], round(1000 * row['side_m'], 1),
+                round(row['distance_m'], 3), round(row.get('vertex_err_px', np.nan), 3),
+                round(row.get('position_err_mm', np.nan), 2), round(row.get('depth_err_mm', np.nan), 2),
+                '; '.join(label for label, _ in crop['others']))))
+    with open(os.path.join(directory, 'worst.tsv'), 'w') as f:
+        f.write('\n'.join(lines) + '\n')
+    return paths
 
 
 def summarise(rows, kind, estimator):
@@ -137,30 +290,36 @@ def summarise(rows, kind, estimator):
             values = np.abs(values)
         return float(np.percentile(values, q)) if len(values) else float('nan')
 
+    def mean(values):
+        return float(np.mean(values)) if len(values) else float('nan')
+
     frame_ms = [r['detect_ms'] + r['estimate_ms'] for r in selected if 'estimate_ms' in r]
+    vertex_errors = [r['vertex_err_px'] for r in selected if 'vertex_err_px' in r]
     return {
         'dataset': kind, 'estimator': estimator, 'frames': len(selected),
         'detection_rate': sum(r['detected'] for r in selected) / max(1, len(selected)),
         'pose_rate': len(estimated) / max(1, len(selected)),
         'position_err_mm_median': stat('position_err_mm', 50), 'position_err_mm_p90': stat('position_err_mm', 90),
-        'depth_err_mm_mean': float(np.mean([r['depth_err_mm'] for r in estimated])) if estimated else float('nan'),
-        'abs_depth_err_mm_mean': float(np.mean([abs(r['depth_err_mm']) for r in estimated])) if estimated else float('nan'),
+        'depth_err_mm_mean': mean([r['depth_err_mm'] for r in estimated]),
+        'abs_depth_err_mm_mean': mean([abs(r['depth_err_mm']) for r in estimated]),
         'abs_depth_err_mm_median': stat('depth_err_mm', 50, absolute=True),
         'abs_depth_err_mm_p90': stat('depth_err_mm', 90, absolute=True),
         'orientation_err_deg_median': stat('orientation_err_deg', 50),
         'orientation_err_deg_p90': stat('orientation_err_deg', 90),
-        'vertex_err_px_median': float(np.median([r['vertex_err_px'] for r in selected if 'vertex_err_px' in r]
-                                                or [np.nan])),
+        'vertex_err_px_mean': mean(vertex_errors),
+        'vertex_err_px_median': float(np.median(vertex_errors)) if vertex_errors else float('nan'),
         'detect_ms_median': float(np.median([r['detect_ms'] for r in selected])),
         'frame_ms_median': float(np.median(frame_ms)) if frame_ms else float('nan'),
     }
 
 
 COLUMNS = [('detection_rate', 'detected', '{:.1%}'), ('pose_rate', 'posed', '{:.1%}'),
+           ('vertex_err_px_mean', 'vertex mean px', '{:.3f}'), ('vertex_err_px_median', 'vertex med px', '{:.3f}'),
            ('position_err_mm_median', 'pos med mm', '{:.2f}'), ('position_err_mm_p90', 'pos p90 mm', '{:.2f}'),
+           ('depth_err_mm_mean', 'dZ mean mm', '{:+.2f}'),
            ('abs_depth_err_mm_mean', '|dZ| mean mm', '{:.2f}'), ('abs_depth_err_mm_p90', '|dZ| p90 mm', '{:.2f}'),
-           ('orientation_err_deg_median', 'rot med deg', '{:.2f}'), ('orientation_err_deg_p90', 'rot p90 deg', '{:.2f}'),
-           ('vertex_err_px_median', 'vertex px', '{:.3f}'), ('frame_ms_median', 'ms/frame', '{:.2f}')]
+           ('orientation_err_deg_median', 'rot med deg', '{:.2f}'),
+           ('orientation_err_deg_p90', 'rot p90 deg', '{:.2f}'), ('frame_ms_median', 'ms/frame', '{:.2f}')]
 
 
 def format_table(summaries):
@@ -173,22 +332,48 @@ def format_table(summaries):
     return '\n'.join(lines)
 
 
+def dataset_list(text):
+    """The dataset names of a ``--datasets`` value: comma-separated names, ``project`` (the project renderer's
+    sets), ``r2`` (the independent renderer's) or ``all``; ArgumentTypeError on an unknown name."""
+    groups = {'project': PROJECT_DATASETS, 'r2': R2_DATASETS, 'all': PROJECT_DATASETS + R2_DATASETS}
+    names = []
+    for name in filter(None, (part.strip() for part in text.split(','))):
+        for kind in groups.get(name, (name,)):
+            if kind not in PROJECT_DATASETS + R2_DATASETS:
+                raise argparse.ArgumentTypeError(f'unknown dataset {kind!r}; known: project, r2, all, '
+                                                 + ', '.join(PROJECT_DATASETS + R2_DATASETS))
+            if kind not in names:
+                names.append(kind)
+    if not names:
+        raise argparse.ArgumentTypeError('no dataset named')
+    return names
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='bench_perception.py', description=__doc__.split('\n')[0])
+    parser.add_argument('--datasets', type=dataset_list, default=list(PROJECT_DATASETS + R2_DATASETS),
+                        help='comma-separated: %s, or the groups project, r2, all (default all)'
+                             % ', '.join(PROJECT_DATASETS + R2_DATASETS))
     parser.add_argument('--frames', type=int, default=300, help='frames in the mixed and green40 datasets')
+    parser.add_argument('--r2-frames', type=int, default=150, help='frames in each _r2 dataset')
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--out', default='out/bench_perception', help='directory for the CSV and JSON results')
     parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
+    parser.add_argument('--worst', type=int, default=0, metavar='N',
+                        help='save crops of the N found targets with the largest vertex error and of N missed ones '
+                             '(truth green, target red, other detections yellow)')
+    parser.add_argument('--worst-dir', default=None, help='where the crops go (default OUT/worst)')
     args = parser.parse_args(argv)
     limit_to_one_core()
     camera = camera_module.load_default_camera()
     config = vision.VisionConfig.from_yaml(args.vision_config)
-    rows = []
-    plan = [('mixed', args.frames), ('green40', args.frames), ('depth161', 56)]
-    for offset, (kind, count) in enumerate(plan):
-        samples = make_dataset(kind, count, args.seed + 100 * offset, camera)
-        rows += run_dataset(kind, samples, camera, config, args.seed + 100 * offset)
-    summaries = [summarise(rows, kind, estimator) for kind, _ in plan for estimator in ESTIMATORS]
+    counts = {'mixed': args.frames, 'green40': args.frames, 'depth161': 56}
+    rows, crops = [], {} if args.worst else None
+    for kind in args.datasets:
+        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)        # each set's seed is its own, whatever is run
+        samples = make_dataset(kind, counts.get(kind, args.r2_frames), args.seed + 100 * offset, camera)
+        rows += run_dataset(kind, samples, camera, config, args.seed + 100 * offset, crops)
+    summaries = [summarise(rows, kind, estimator) for kind in args.datasets for estimator in ESTIMATORS]
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, 'frames.csv'), 'w', newline='') as f:
         keys = sorted({k for r in rows for k in r})
@@ -197,6 +382,14 @@ def main(argv=None):
         writer.writerows(rows)
     with open(os.path.join(args.out, 'summary.json'), 'w') as f:
         json.dump(summaries, f, indent=1)
-    print(format_table(summaries))
+    for title, kinds in (('project renderer (synthetic.py)', PROJECT_DATASETS),
+                         ('independent renderer (render_independent.py)', R2_DATASETS)):
+        chosen = [s for s in summaries if s['dataset'] in kinds]
+        if chosen:
+            print('\n%s\n\n%s' % (title, format_table(chosen)))
+    if args.worst:
+        directory = args.worst_dir or os.path.join(args.out, 'worst')
+        save_worst(rows, crops, directory, args.worst)
+        print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
     print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json)' % (args.out, args.out))
     return 0

@@ -54,7 +54,8 @@ Beyond the thesis (all switchable in the YAML):
   Laplacian, so a colourless image stays empty and a blob cut by the image border keeps a closed outline.
 - Speed (``roi``): the candidate blobs of each colour are found by the same stages on a subsampled
   image; the full pipeline then runs only in padded regions around them, for their colours. The
-  dynamic threshold (eq. 3.14) is then taken from the subsampled image's saturation range.
+  dynamic threshold (eq. 3.14) and the white balance are taken from the subsampled image, with the ROI search
+  on or off (so both give the same result).
 
 Pixels are (u, v) = (column, row), origin at the centre of the top-left pixel; vertex coordinates are
 in the raw (distorted) image.

@@ -7,6 +7,7 @@ exposure, so they are never a colour; the floor on lightness keeps the chroma no
 Units: CIELAB as OpenCV's 8-bit conversion gives it, rescaled to L* 0-100 and a*, b* (and chroma) in CIELAB
 units; hue angles in degrees (0 = +a*, 90 = +b*). Images indexed [row, column].
 """
+import dataclasses
 import functools
 
 import cv2
@@ -15,6 +16,7 @@ import numpy as np
 _LAB_SCALE = 255.0 / 100.0          # OpenCV 8-bit L = L* * 255 / 100; a = a* + 128; b = b* + 128
 _WB_PIXELS = 2000                   # white_balance_gains: images larger than this are sampled every _WB_STRIDE px
 _WB_STRIDE = 2
+_WB_MIN_LIGHTNESS = 20              # L*: darker pixels are too noisy to say what the light's colour is
 
 
 def white_balance_gains(image_bgr, config):
@@ -26,34 +28,50 @@ def white_balance_gains(image_bgr, config):
     one coloured object cannot be turned grey. Ones when disabled or when too few pixels qualify. Pass a
     subsampled image (detection passes the candidate search's); above 2000 px every 2nd pixel is used.
     """
+    return white_balance(image_bgr, config)[0]
+
+
+def white_balance(image_bgr, config):
+    """``(gains, residual_cast)``: ``white_balance_gains``, and the chroma (CIELAB units) of the cast they leave on
+    the image (the magnitude of the median a*, b* of its mid-lightness pixels once balanced): 0-4 on a balanced
+    real frame, large under a strongly tinted light the gains could not (or not everywhere) remove, whose tint
+    must not become a colour. 0 when the balance is disabled or too few pixels qualify."""
+    ones = np.ones(3, np.float32)
     if not config.white_balance:
-        return np.ones(3, np.float32)
+        return ones, 0.0
     pixels = image_bgr[::_WB_STRIDE, ::_WB_STRIDE] if image_bgr.size > 3 * _WB_PIXELS else image_bgr
-    lab = cv2.cvtColor(np.ascontiguousarray(pixels), cv2.COLOR_BGR2LAB).reshape(-1, 3)
+    pixels = np.ascontiguousarray(pixels)
+    lab = cv2.cvtColor(pixels, cv2.COLOR_BGR2LAB).reshape(-1, 3)
     ab = lab[:, 1:].astype(np.int32) - 128
     chroma_squared = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
-    mid = (lab[:, 0] >= 20 * _LAB_SCALE) & (lab[:, 0] <= 95 * _LAB_SCALE)
+    mid = (lab[:, 0] >= _WB_MIN_LIGHTNESS * _LAB_SCALE) & (lab[:, 0] <= 95 * _LAB_SCALE)
     if np.count_nonzero(mid) < 0.05 * len(mid):
-        return np.ones(3, np.float32)
+        return ones, 0.0
     grey = mid & (chroma_squared <= np.median(chroma_squared[mid]))
     illuminant = np.median(pixels.reshape(-1, 3)[grey], axis=0).astype(np.float32)
     if np.any(illuminant < 1.0):
-        return np.ones(3, np.float32)
-    gains = illuminant.mean() / illuminant
-    return np.clip(gains, 1.0 / config.max_gain, config.max_gain).astype(np.float32)
+        return ones, 0.0
+    gains = np.clip(illuminant.mean() / illuminant, 1.0 / config.max_gain, config.max_gain).astype(np.float32)
+    balanced = cv2.cvtColor(balanced_bgr(pixels.reshape(-1, 1, 3)[mid], gains), cv2.COLOR_BGR2LAB).reshape(-1, 3)
+    return gains, float(np.hypot(*(np.median(balanced[:, 1:], axis=0) - 128.0)))
+
+
+def balanced_bgr(image_bgr, gains):
+    """The image scaled per channel by ``gains`` (saturating); the image itself when the gains are all 1."""
+    if np.all(gains == 1.0):
+        return image_bgr
+    return cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
 
 
 def balanced_lab(image_bgr, gains):
     """The image scaled per channel by ``gains`` (saturating) and converted to 8-bit CIELAB (OpenCV's scales)."""
-    if np.all(gains == 1.0):
-        balanced = image_bgr
-    else:
-        balanced = cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
-    return cv2.cvtColor(balanced, cv2.COLOR_BGR2LAB)
+    return cv2.cvtColor(balanced_bgr(image_bgr, gains), cv2.COLOR_BGR2LAB)
 
 
-def class_masks(lab, classes):
-    """{name: uint8 mask (255 inside)} of the pixels of the 8-bit CIELAB image ``lab`` in each ``ColourClass``."""
+def class_masks(lab, classes, extra_chroma=0.0):
+    """{name: uint8 mask (255 inside)} of the pixels of the 8-bit CIELAB image ``lab`` in each ``ColourClass``,
+    every class's chroma floor raised by ``extra_chroma`` (rounded to a whole unit)."""
+    extra = float(round(extra_chroma))
     ab_index = (lab[..., 1].astype(np.int32) << 8) | lab[..., 2]
     bright = {}
     masks = {}
@@ -61,6 +79,8 @@ def class_masks(lab, classes):
         floor = colour_class.min_lightness
         if floor not in bright:
             bright[floor] = cv2.threshold(lab[..., 0], floor * _LAB_SCALE - 1e-6, 255, cv2.THRESH_BINARY)[1]
+        if extra > 0:
+            colour_class = dataclasses.replace(colour_class, min_chroma=colour_class.min_chroma + extra)
         masks[name] = cv2.bitwise_and(np.take(_ab_table(colour_class), ab_index), bright[floor])
     return masks
 

@@ -80,15 +80,19 @@ class ColourClass(Parameters):
 class ChromaConfig(Parameters):
     """The chroma pipeline (``vision.chroma``): white balance from the image (gains clipped to ``max_gain``),
     the colour ``classes``, and ``min_fill``: the least fraction of a detected polygon its colour covers
-    (a die's pips leave most of its face; a yellow box with a red button in it does not)."""
+    (a die's pips leave most of its face; a yellow box with a red button in it does not); ``max_residual_cast``:
+    the chroma of a cast the white balance could not remove (``chroma.white_balance``) beyond which every class's
+    chroma floor is raised by the excess."""
     white_balance: bool = True
     max_gain: float = 2.0
+    max_residual_cast: float = 5.0
     min_fill: float = 0.7
     classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(150.0, 40.0, 19.0)})
 
     def validate(self):
         self.require(self.max_gain >= 1.0, 'max_gain', 'must be >= 1')
         self.require(0.0 <= self.min_fill <= 1.0, 'min_fill', 'must be in [0, 1]')
+        self.require(self.max_residual_cast >= 0.0, 'max_residual_cast', 'must be >= 0')
         self.require(bool(self.classes), 'classes', 'must define at least one colour')
 
 
@@ -116,6 +120,7 @@ class VisionConfig(Parameters):
     approx_epsilon_fraction: float = 0.02
     merge_distance_fraction: float = 0.05
     cut_corner_area_fraction: float = 0.04
+    flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)

@@ -12,7 +12,8 @@ from baxter_pnp.vision import chroma
 from baxter_pnp.vision.colour import (colour_mask, dynamic_threshold, find_blobs, laplacian_sharpen, open_close,
                                       oversaturated_hsv)
 from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, looks_round,
-                                       merge_close_vertices, order_vertices, remove_cut_corners)
+                                       merge_close_vertices, order_vertices, remove_cut_corners,
+                                           remove_flat_vertices)
 from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
@@ -75,7 +76,7 @@ def detect(image_bgr, config, colours=None, shapes=None):
     if config.roi.enabled:
         regions = _candidate_regions(image_bgr, segmenter, config)
     else:
-        segmenter.adapt(image_bgr)
+        segmenter.adapt(_subsampled(image_bgr, config.roi.downsample))     # the same adaptation as with the ROI
         regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(colours))]
     detections = []
     for region, region_colours in regions:
@@ -96,11 +97,13 @@ class ColourSegmenter:
         self.colours = list(colours)
         self._threshold = None
         self._gains = None
+        self._extra_chroma = 0.0
 
     def adapt(self, image_bgr):
         """Take the image-wide quantities (threshold or white balance) from ``image_bgr`` (any scale)."""
         if self.config.pipeline == 'chroma':
-            self._gains = chroma.white_balance_gains(image_bgr, self.config.chroma)
+            self._gains, cast = chroma.white_balance(image_bgr, self.config.chroma)
+            self._extra_chroma = max(0.0, cast - self.config.chroma.max_residual_cast)
         else:
             self._threshold = dynamic_threshold(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self.config)
 
@@ -109,7 +112,7 @@ class ColourSegmenter:
         colours = self.colours if colours is None else [c for c in self.colours if c in colours]
         if self.config.pipeline == 'chroma':
             lab = chroma.balanced_lab(image_bgr, self._gains)
-            return chroma.class_masks(lab, {c: self.config.chroma.classes[c] for c in colours})
+            return chroma.class_masks(lab, {c: self.config.chroma.classes[c] for c in colours}, self._extra_chroma)
         oversaturated = oversaturated_hsv(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._threshold, self.config)
         return {c: colour_mask(oversaturated, self.config.colours[c]) for c in colours}
 
@@ -123,7 +126,7 @@ def _candidate_regions(image_bgr, segmenter, config):
     """
     f = config.roi.downsample
     h, w = image_bgr.shape[:2]
-    small = cv2.resize(image_bgr, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_NEAREST)
+    small = _subsampled(image_bgr, f)
     segmenter.adapt(small)
     pad = config.roi.padding_px
     boxes = []
@@ -136,6 +139,12 @@ def _candidate_regions(image_bgr, segmenter, config):
                 boxes.append(((max(0, x * f - pad), max(0, y * f - pad),
                                min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour}))
     return _merge_boxes(boxes)
+
+
+def _subsampled(image_bgr, factor):
+    """``image_bgr`` subsampled by ``factor`` (nearest pixel), at least 1x1."""
+    h, w = image_bgr.shape[:2]
+    return cv2.resize(image_bgr, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_NEAREST)
 
 
 def _merge_boxes(boxes):
@@ -172,7 +181,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
             outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
-            detection = None if outline is None else _polygon_detection(image_bgr, outline, offset, colour, config)
+            detection = _polygon_detection(image_bgr, outline, offset, colour, config)
             if detection is None or detection.shape not in shapes:
                 continue
             if config.pipeline == 'chroma' and (
@@ -201,6 +210,7 @@ def _polygon_detection(image_bgr, outline, offset, colour, config):
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
     coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
+    coarse = remove_flat_vertices(coarse, config.flat_vertex_area_fraction)
     shape = classify_shape(len(coarse))
     if shape is None:
         return None

@@ -3,11 +3,14 @@ side faces (same hue, darker) joined it in oblique views. Contours (M, 1, 2) int
 import cv2
 import numpy as np
 
-_SQUARE5 = np.ones((5, 5), np.uint8)
+_SQUARE3 = np.ones((3, 3), np.uint8)
+_MIN_RIM_SHARE = 0.3       # a face's outline lies at least this much on the blob's outline ...
+_RIM_DEPTH_PX = 3.5         # ... its rim, this deep (the face's own edge, blurred into the table, lies 1-2 px in)
 
 
 def isolate_top_face(blob, hsv, config):
-    """Outline (M, 1, 2) int32 of the block's top face within the contour ``blob``, or None if none is found.
+    """Outline (M, 1, 2) int32 of the block's top face within the contour ``blob`` (the blob itself if no face
+    can be split off).
 
     ``hsv``: the original image in HSV (uint8, OpenCV scales), in the coordinates of ``blob``. A
     block's faces share its colour; under light from above the table the top face is the most
@@ -16,22 +19,26 @@ def isolate_top_face(blob, hsv, config):
     in two by Otsu's threshold; while the split is significant (the classes' means differ by at
     least ``min_contrast`` of the bright one's, and the bright class holds at least
     ``min_face_fraction`` of the interior) the bright class is split again, so that a side face lit
-    nearly as brightly as the top goes too. The top face is then the largest connected region of
-    the blob above the last significant threshold whose saturation is at least half the bright
-    interior's mean: the pixels a side face shares with the (paler but brighter) table are as bright
-    as the top, not as saturated. It is the blob itself when the first split is not significant
-    (one face: the lighting gradient across a face changes its V by a few per cent, a face edge by
-    tens). None when the region's solidity (area / convex-hull area) is below ``min_solidity``.
+    nearly as brightly as the top goes too. At each level the candidate face is the largest connected
+    region of the blob above the threshold whose saturation is at least half the bright interior's
+    mean (the pixels a side face shares with the paler but brighter table are as bright as the top, not
+    as saturated), its holes filled (pips, a printed label). A split is kept only while its face is a
+    face: solid (area / convex-hull area at least ``min_solidity``) and part of the blob's outline (at
+    least 30 % of its own outline within 3.5 px of the blob's: whatever the view, the top face's edges with no
+    side face below them are silhouette). A specular highlight, white pips or a lighter patch of grain
+    lie inside the face and stop the splitting; the last face kept (or the whole blob, one face: the
+    lighting gradient across a face changes its V by a few per cent, a face edge by tens) is returned.
     """
     x, y, w, h = cv2.boundingRect(blob)
     box = (slice(y, y + h), slice(x, x + w))
     inside = np.zeros((h, w), np.uint8)
     cv2.drawContours(inside, [blob], -1, 255, cv2.FILLED, offset=(-x, -y))
     value, saturation = hsv[box][..., 2].copy(), hsv[box][..., 1].copy()
-    interior = cv2.erode(inside, _SQUARE5)
+    interior = _within(inside, cv2.DIST_C, lambda d: d >= 3)        # eroded by 2 px
+    rim = _within(inside, cv2.DIST_L2, lambda d: d <= _RIM_DEPTH_PX)
     values = value[interior > 0]
     minimum_count = max(config.min_face_fraction * len(values), 1)
-    threshold = None
+    face = None
     while len(values) >= 2:
         cut, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
         bright = values > cut
@@ -41,18 +48,44 @@ def isolate_top_face(blob, hsv, config):
         bright_mean, dark_mean = float(bright_values.mean()), float(values[~bright].mean())
         if bright_mean - dark_mean < config.min_contrast * bright_mean:
             break
-        threshold, values = cut, bright_values
-    if threshold is None:
-        return blob
+        region = _bright_region(value, saturation, inside, interior, cut)
+        if region is None or _rim_share(region, rim) < _MIN_RIM_SHARE:
+            break                  # a highlight, pips or a label inside the face, not a face: stop splitting
+        contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
+        outline = max(contours, key=cv2.contourArea)
+        if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
+            break                  # not a face's shape (a split along shading or marks): keep the previous one
+        face, values = outline, bright_values
+    return blob if face is None else face
+
+
+def _within(inside, metric, keep):
+    """uint8 mask of the pixels of ``inside`` whose distance (``metric``) to the nearest pixel outside it, the
+    crop's border counting as outside, satisfies ``keep``."""
+    padded = cv2.copyMakeBorder(inside, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    distance = cv2.distanceTransform(padded, metric, 3)[1:-1, 1:-1]
+    return np.where((inside > 0) & keep(distance), 255, 0).astype(np.uint8)
+
+
+def _bright_region(value, saturation, inside, interior, threshold):
+    """uint8 mask of the largest connected region of the blob ``inside`` brighter than ``threshold`` and at
+    least half as saturated as the bright interior, its holes filled; None if there is none."""
     _, bright = cv2.threshold(value, threshold, 255, cv2.THRESH_BINARY)
     top_saturation = cv2.mean(saturation, cv2.bitwise_and(bright, interior))[0]
     _, saturated = cv2.threshold(saturation, 0.5 * top_saturation, 255, cv2.THRESH_BINARY)
     top = cv2.bitwise_and(cv2.bitwise_and(bright, saturated), inside)
-    contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
+    contours, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return None
-    outline = max(contours, key=cv2.contourArea)
-    if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
-        return None
-    return outline
+    region = np.zeros_like(inside)
+    cv2.drawContours(region, [max(contours, key=cv2.contourArea)], -1, 255, cv2.FILLED)
+    return region
 
+
+def _rim_share(region, rim):
+    """Fraction of the outline pixels of ``region`` that lie on the blob's ``rim``: a top face is part of the
+    block's silhouette (whatever the view, at least the edges with no side face below them), a highlight, a
+    pip or a printed mark lies inside it."""
+    outline = cv2.subtract(region, cv2.erode(region, _SQUARE3))
+    count = cv2.countNonZero(outline)
+    return cv2.countNonZero(cv2.bitwise_and(outline, rim)) / count if count else 0.0

@@ -173,7 +173,7 @@ def configure_args(parameters):
     return '{%s}' % ', '.join(f'"{key}": {value}' for key, value in parameters.items())
 
 
-def test_gripper_protocol_over_ros(robot):
+def test_gripper_protocol_over_ros(robot, keeps_real_time):
     """Properties, acknowledgements, calibration, and ``configure``: the fingers close at the configured velocity
     (percent of GRIPPER_MAX_SPEED per finger), measured on the gripper states' stamps."""
     assert all(SLOW_GRIPPER[key] != GRIPPER_PARAMETERS[key] for key in GRIPPER_PARAMETERS)

@@ -11,6 +11,7 @@ in their own threads, the frames are captured by the main loop (``capture_due``)
 """
 import errno
 import threading
+import time
 
 import rospy
 from sensor_msgs.msg import CameraInfo, Image
@@ -28,20 +29,23 @@ CAMERAS_RESET_SERVICE = '/cameras/reset'
 
 class CamerasNode:
     """Camera services and image topics around ``world``'s renderer; ``noise_rng`` and ``frame_fault_rng`` are the
-    image-noise and frame-fault generators; ``open_cameras`` [(name, width, height, fps)] open at boot."""
+    image-noise and frame-fault generators; ``ros_time(now)`` the stamp of simulated time ``now`` (s);
+    ``open_cameras`` [(name, width, height, fps)] open at boot."""
 
-    def __init__(self, world, image_encoding, noise_rng, frame_fault_rng, open_cameras=()):
-        self.world, self.image_encoding = world, image_encoding
+    def __init__(self, world, image_encoding, noise_rng, frame_fault_rng, ros_time, open_cameras=()):
+        self.world, self.image_encoding, self._ros_time = world, image_encoding, ros_time
         self.faults = world.scene.faults.camera
         self._noise_rng, self._frame_fault_rng = noise_rng, frame_fault_rng
         self.bank = CameraBank()
         self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) captured, not published
         self._publishers = {}             # {open camera: (image, camera_info) publishers}
         self._publishers_lock = threading.Lock()
+        self.first_opened = None          # (wall s of time.monotonic, simulated s) of the first camera opened
         for name, width, height, fps in open_cameras:
             world.prepare_camera(image_model(name, width, height))
             self.bank.open(name, width, height, fps, now=0.0)
             world.start_fault_clock()
+            self._note_first_open(0.0)
             self._advertise(name)
         rospy.Service(sdk.CAMERAS_LIST_SERVICE, srv.ListCameras,
                       lambda request: srv.ListCamerasResponse(self.bank.list()))
@@ -66,8 +70,13 @@ class CamerasNode:
             rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
             self.world.start_fault_clock(now)
+            self._note_first_open(now)
             self._advertise(request.name)      # advertised before the answer, as the robot's driver does
         return srv.OpenCameraResponse(err)
+
+    def _note_first_open(self, now):
+        if self.first_opened is None:
+            self.first_opened = (time.monotonic(), now)
 
     def _close_camera(self, name):
         """0 when closed (its topics withdrawn), EINVAL when it was not open."""
@@ -109,6 +118,6 @@ class CamerasNode:
         fault_time = self.world.fault_time(now)
         if not self.faults.publishes(fault_time, self._frame_fault_rng.random()):
             return
-        header = Header(stamp=rospy.Time.from_sec(now), frame_id='/' + name)     # as the robot: leading /
+        header = Header(stamp=self._ros_time(now), frame_id='/' + name)     # as the robot: leading /
         image = self.world.render_camera(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
         self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header), cam.camera_info(header)))

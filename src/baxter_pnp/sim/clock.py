@@ -1,12 +1,17 @@
-"""Simulated-time bookkeeping for the fake Baxter: wall-clock pacing and periodic schedules (no ROS).
+"""Simulated-time bookkeeping for the fake Baxter: wall-clock pacing, periodic schedules and the time its
+messages carry (no ROS).
 
-The fake Baxter owns time: it advances the physics by fixed steps and publishes ``/clock``. Everything
-periodic (publications, rendering) is scheduled in simulated seconds with ``RateSchedule``, so rates
-stay right in simulated time however fast the CPU is; ``RealTimePacer`` only decides how long to sleep
-in wall time so that simulated time runs at ``real_time_factor`` times wall time (or as fast as
-possible with a factor of 0, or as fast as the CPU allows when it cannot keep up).
+The fake Baxter advances the physics by fixed steps. Everything periodic (publications, rendering) is scheduled
+in simulated seconds with ``RateSchedule``, so rates stay right in simulated time however fast the CPU is;
+``RealTimePacer`` only decides how long to sleep in wall time so that simulated time runs at
+``real_time_factor`` times wall time (or as fast as possible with a factor of 0, or as fast as the CPU allows
+when it cannot keep up). ``MessageClock`` says what the stamps hold: simulated seconds (``sim``, the fake
+publishes ``/clock``) or, as a real robot, the wall clock (``wall``).
 """
 import time
+
+CLOCKS = ('sim', 'wall')          # --clock: simulated time on /clock, or the wall clock as the real robot
+DEFAULT_CLOCK = 'sim'
 
 
 class RateSchedule:
@@ -65,8 +70,45 @@ class RealTimePacer:
         elif wall - target > self.max_lag:
             self._reference = (wall, sim_time)
 
+    def wall_time_of(self, sim_time):
+        """The wall instant (s of ``wall_clock``) this pacer holds simulated instant ``sim_time`` (s) to: now
+        before the first ``pace`` call; at most ``max_lag`` before the wall clock once pacing (factor > 0)."""
+        if self._reference is None or self.real_time_factor == 0:
+            return self._wall_clock()
+        wall_ref, sim_ref = self._reference
+        return wall_ref + (sim_time - sim_ref) / self.real_time_factor
+
     def measured_factor(self):
         """Simulated seconds per wall second since the first ``pace`` call (0 before two calls)."""
         if self._start is None or self._last[0] <= self._start[0]:
             return 0.0
         return (self._last[1] - self._start[1]) / (self._last[0] - self._start[0])
+
+
+class MessageClock:
+    """The time the fake's messages carry. ``sim``: simulated seconds (``/clock`` published, ``/use_sim_time``
+    set). ``wall``: as a real robot, Unix seconds of the wall clock -- the instant ``pacer`` (which must run at
+    a real-time factor of 1) holds each simulated instant to, so a message's stamp is within a physics step
+    of when it is sent while the fake keeps pace, and stamps stay as evenly spaced as the simulation's.
+    ``unix_minus_wall``: Unix time minus the pacer's wall clock (default: measured now for ``time.monotonic``).
+    """
+
+    def __init__(self, kind, pacer, unix_minus_wall=None):
+        if kind not in CLOCKS:
+            raise ValueError(f'clock must be one of {", ".join(CLOCKS)}, got {kind!r}')
+        if kind == 'wall' and pacer.real_time_factor != 1.0:
+            raise ValueError(f'the wall clock needs a real-time factor of 1 (got {pacer.real_time_factor:g}); '
+                             f'use the sim clock to run slower or faster than real time')
+        self.kind, self._pacer = kind, pacer
+        self._unix_minus_wall = time.time() - time.monotonic() if unix_minus_wall is None else unix_minus_wall
+
+    @property
+    def publishes_clock(self):
+        """True when the fake publishes ``/clock`` (simulated time)."""
+        return self.kind == 'sim'
+
+    def seconds(self, sim_time):
+        """The stamp (s) of what happens at simulated time ``sim_time`` (s)."""
+        if self.kind == 'sim':
+            return sim_time
+        return self._unix_minus_wall + self._pacer.wall_time_of(sim_time)

@@ -24,11 +24,12 @@ SET_ANALOG_INPUT_TOPIC = '~set_analog_input'
 
 
 class IONode:
-    """I/O topics around an ``IOBoard``; ``range_m(side)`` is the hand range sensor's distance (m, inf if none)."""
+    """I/O topics around an ``IOBoard``; ``range_m(side)`` is the hand range sensor's distance (m, inf if none);
+    ``ros_time(now)`` the stamp of simulated time ``now`` (s)."""
 
-    def __init__(self, range_m, queued):
+    def __init__(self, range_m, queued, ros_time):
         self.board = IOBoard()
-        self._range_m = range_m
+        self._range_m, self._ros_time = range_m, ros_time
         self._digital = {name: rospy.Publisher(f'/robot/digital_io/{name}/state', msg.DigitalIOState, queue_size=10)
                          for name in self.board.digital}
         self._analog = {name: rospy.Publisher(f'/robot/analog_io/{name}/state', msg.AnalogIOState, queue_size=10)
@@ -53,7 +54,7 @@ class IONode:
         """Publish at once the components (and navigators) whose value changed."""
         changed = self.board.take_changed()
         if changed:
-            self._publish(changed, rospy.Time.from_sec(now), aggregates=False)
+            self._publish(changed, self._ros_time(now), aggregates=False)
 
     @staticmethod
     def _applier(topic, apply):

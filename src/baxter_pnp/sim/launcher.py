@@ -15,6 +15,12 @@ Typical use::
 
 ``master.environment()`` additionally points this process's ``os.environ`` at the master (for rospy
 in this process; rospy reads ``ROS_MASTER_URI`` once, when its node starts).
+
+Time: a master and the fakes on it share one clock (the fake's ``--clock``): ``sim`` (``/use_sim_time`` set before
+any node starts, the fake publishes ``/clock``) or ``wall`` (as a real robot). The default is the fake's default,
+or ``BAXTER_PNP_CLOCK`` (e.g. ``BAXTER_PNP_CLOCK=wall pytest tests/test_fake_baxter.py`` runs those tests against a
+wall-clock fake). On a wall-clock master a fake asked to run unpaced (``--real-time-factor 0``) runs paced at 1.0:
+only simulated time can run faster than the wall.
 """
 import contextlib
 import dataclasses
@@ -29,11 +35,21 @@ import time
 import rosgraph
 
 from baxter_pnp.runtime import PACKAGE_ROOT, venv_python
+from baxter_pnp.sim.clock import CLOCKS, DEFAULT_CLOCK
 
 SCRIPTS_DIR = os.path.join(PACKAGE_ROOT, 'scripts')
 FAKE_BAXTER_SCRIPT = os.path.join(SCRIPTS_DIR, 'fake_baxter.py')
 ROSMASTER = shutil.which('rosmaster') or '/usr/bin/rosmaster'
 READY_TOPIC = '/robot/sim/started'   # latched, published by the fake Baxter once everything flows
+CLOCK_ENV = 'BAXTER_PNP_CLOCK'       # sim | wall: the harness's clock when none is given
+
+
+def harness_clock():
+    """The clock of masters and fakes started without one: ``$BAXTER_PNP_CLOCK``, else the fake's default."""
+    clock = os.environ.get(CLOCK_ENV) or DEFAULT_CLOCK
+    if clock not in CLOCKS:
+        raise ValueError(f'{CLOCK_ENV}={clock!r}: expected one of {", ".join(CLOCKS)}')
+    return clock
 
 
 def free_port():
@@ -111,15 +127,18 @@ def _read(log_path):
 class RosMaster:
     """``rosmaster --core -p PORT`` on 127.0.0.1 (``ROS_IP=127.0.0.1``), in its own process group.
 
-    ``use_sim_time`` (default True) sets the ``/use_sim_time`` parameter as soon as the master answers,
-    before any node starts: the fake Baxter owns the clock and every node then runs in simulated
-    time. ``log_dir`` receives the master's log (and is exported as ``ROS_LOG_DIR`` to children).
+    ``clock`` (default ``harness_clock()``): with ``sim`` the ``/use_sim_time`` parameter is set as soon as the
+    master answers, before any node starts (the fake Baxter owns the clock and every node then runs in
+    simulated time); with ``wall`` it is not (as on a real robot). ``log_dir`` receives the master's log (and is
+    exported as ``ROS_LOG_DIR`` to children).
     """
 
-    def __init__(self, port=None, use_sim_time=True, log_dir=None, start_timeout=10.0):
+    def __init__(self, port=None, clock=None, log_dir=None, start_timeout=10.0):
         self.port = port or free_port()
         self.uri = f'http://127.0.0.1:{self.port}'
-        self.use_sim_time = use_sim_time
+        self.clock = clock or harness_clock()
+        if self.clock not in CLOCKS:
+            raise ValueError(f'clock must be one of {", ".join(CLOCKS)}, got {self.clock!r}')
         self.log_dir = log_dir
         self.start_timeout = start_timeout
         self.process = None
@@ -135,7 +154,7 @@ class RosMaster:
                                         start_new_session=True)
         wait_until(lambda: rosgraph.is_master_online(self.uri), self.start_timeout,
                    what=f'rosmaster on port {self.port}', process=self.process)
-        if self.use_sim_time:
+        if self.clock == 'sim':
             self.master_api().setParam('/use_sim_time', True)
         return self
 
@@ -167,19 +186,33 @@ class RosMaster:
         self.stop()
 
 
+def fake_clock_args(args, clock):
+    """The fake's ``args`` with ``--clock clock`` added unless they hold one; for the wall clock, an unpaced
+    ``--real-time-factor 0`` becomes 1 (the wall clock runs at real time)."""
+    args = list(args)
+    if '--clock' in args:
+        return args
+    if clock == 'wall' and '--real-time-factor' in args:
+        index = args.index('--real-time-factor') + 1
+        if index < len(args) and args[index].strip() in ('0', '0.0'):
+            args[index] = '1'
+    return args + ['--clock', clock]
+
+
 class FakeBaxterProcess:
     """``scripts/fake_baxter.py ARGS`` as a subprocess attached to ``master``.
 
     ``master`` is a ``RosMaster``, or None for whatever master ``os.environ`` points at. The node
     runs under the project's venv interpreter (``project_python``), so ``baxter_pnp`` is importable
-    without a catkin workspace. ``start()`` returns when the node is ready, i.e. when its latched
+    without a catkin workspace. Unless ``args`` hold a ``--clock``, it gets the master's (``harness_clock()``
+    without a master; see ``fake_clock_args``). ``start()`` returns when the node is ready, i.e. when its latched
     ``/robot/sim/started`` topic is registered with the master (the node registers it once all its
     topics flow), or raises RuntimeError with the end of its log. stdout and stderr go to ``log_path``.
     """
 
     def __init__(self, master, args=(), log_path=None, ready_timeout=30.0):
         self.master = master
-        self.args = [str(a) for a in args]
+        self.args = fake_clock_args([str(a) for a in args], harness_clock() if master is None else master.clock)
         self.log_path = str(log_path) if log_path else None
         self.ready_timeout = ready_timeout
         self.process = None

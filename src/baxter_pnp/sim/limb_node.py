@@ -33,14 +33,15 @@ class LimbNode:
     """The ``side`` arm's topics and IK service. ``robot`` is the shared ``RobotEnableState`` (commands act only
     while enabled); ``delayed_commands`` the ``DelayLine`` of the ``joint_command_delay`` fault; ``ik_fault_rng``
     this arm's generator of IK-fault draws; ``T_base(frame)`` T_base_frame from the published tf (None if unknown);
-    ``current_angles()`` {joint: rad} last published."""
+    ``current_angles()`` {joint: rad} last published; ``ros_time(now)`` the stamp of simulated time ``now`` (s)."""
 
-    def __init__(self, side, world, robot, faults, queued, delayed_commands, ik_fault_rng, T_base, current_angles):
+    def __init__(self, side, world, robot, faults, queued, delayed_commands, ik_fault_rng, T_base, current_angles,
+                 ros_time):
         self.side, self.world, self.robot, self.faults = side, world, robot, faults
         self.arm = ArmCommander(world, side)
         self._delayed_commands = delayed_commands
         self._ik_fault_rng = ik_fault_rng
-        self._T_base, self._current_angles = T_base, current_angles
+        self._T_base, self._current_angles, self._ros_time = T_base, current_angles, ros_time
         self._kinematics = ArmKinematics(side)
         self._kinematics_lock = threading.Lock()
         self.topics = sdk.limb_topics(side)
@@ -162,7 +163,7 @@ class LimbNode:
                             result_type = stage_type
                             break
             solution_state = JointState(name=list(names), position=[] if solution is None else list(solution))
-            solution_state.header.stamp = rospy.Time.from_sec(self.world.time)
+            solution_state.header.stamp = self._ros_time(self.world.time)
             joints.append(solution_state)
             valid.append(solution is not None)
             result_types.append(result_type)

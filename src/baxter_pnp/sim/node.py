@@ -9,10 +9,12 @@ edge of a part of it -- ``sim.limb_node`` (each arm: commands, endpoint, IK, ran
 topics (``/robot/state`` and its enable / reset / stop, ``/robot/joint_states``, ``/tf``, ``/clock``), the ground
 truth of tests (``/fake_baxter/...``) and the loop.
 
-It owns simulated time: each loop iteration advances the physics by one fixed step, publishes ``/clock`` and
-whatever is due in simulated time (``clock.RateSchedule``), then sleeps just enough to run at ``--real-time-factor``
-(``clock.RealTimePacer``). Rates therefore hold in simulated time whatever the CPU speed; a slow CPU only lowers
-the achieved real-time factor.
+Each loop iteration advances the physics by one fixed step, publishes whatever is due in simulated time
+(``clock.RateSchedule``), then sleeps just enough to run at ``--real-time-factor`` (``clock.RealTimePacer``). Rates
+therefore hold in simulated time whatever the CPU speed; a slow CPU only lowers the achieved real-time factor.
+``--clock`` (``clock.MessageClock``) says what its stamps hold: ``sim`` (the default) publishes ``/clock`` every step
+and sets ``/use_sim_time``, so every node runs on simulated time; ``wall`` stamps the wall clock, paced at 1.0,
+with no ``/clock`` and no ``/use_sim_time``, as a real robot.
 
 Names: the SDK's topic, service and frame names and constants come from ``baxter_pnp.robot.sdk``, which
 the robot clients use too; nothing else of ``baxter_pnp.robot`` is imported here.
@@ -35,6 +37,7 @@ import dataclasses
 import math
 import os
 import sys
+import time
 import xml.etree.ElementTree as ElementTree
 
 import numpy as np
@@ -54,7 +57,7 @@ from baxter_pnp.sim import fastmath
 from baxter_pnp.sim.assembly import IDENTITY_PARAMS, RobotEnableState
 from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, parse_camera_option
 from baxter_pnp.sim.cameras_node import CamerasNode
-from baxter_pnp.sim.clock import RateSchedule, RealTimePacer
+from baxter_pnp.sim.clock import CLOCKS, DEFAULT_CLOCK, MessageClock, RateSchedule, RealTimePacer
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper_node import GripperNode
 from baxter_pnp.sim.head_node import HeadNode
@@ -85,7 +88,7 @@ class FakeBaxterNode:
     """Publishes, subscribes and serves Baxter's interfaces around a ``SimWorld``; ``run()`` is the loop."""
 
     def __init__(self, world, urdf_text, real_time_factor=1.0, image_encoding='bgra8', enable=False,
-                 open_cameras=(), seed=0):
+                 open_cameras=(), seed=0, clock=DEFAULT_CLOCK):
         self.world = world
         self.faults = world.scene.faults
         # Independent streams, so that e.g. the IK calls an application makes do not change the image noise.
@@ -100,13 +103,13 @@ class FakeBaxterNode:
         positions, _, _ = world.joint_state()
         self._joint_positions = dict(zip(world.joint_names(), (float(q) for q in positions)))   # rad, last published
         self.pacer = RealTimePacer(real_time_factor)
+        self.clock = MessageClock(clock, self.pacer)
 
         for name, value in IDENTITY_PARAMS.items():
             rospy.set_param(name, value)
         rospy.set_param('/robot_description', urdf_text)
         latched = dict(queue_size=1, latch=True)
         self._pub = {
-            'clock': rospy.Publisher('/clock', Clock, queue_size=10),
             'robot_state': rospy.Publisher(sdk.ROBOT_STATE_TOPIC, msg.AssemblyState, queue_size=10),
             'joint_states': rospy.Publisher(sdk.JOINT_STATES_TOPIC, JointState, queue_size=10),
             'tf': rospy.Publisher('/tf', TFMessage, queue_size=10),
@@ -114,6 +117,7 @@ class FakeBaxterNode:
             'object_poses': rospy.Publisher('~object_poses', PoseArray, queue_size=10),
             'respawns': rospy.Publisher('~respawns', UInt32, **latched),
         }
+        self._clock_publisher = rospy.Publisher('/clock', Clock, queue_size=10) if self.clock.publishes_clock else None
         self._respawns_published = None
         self._publish_respawns()
         queued = self._queued
@@ -122,11 +126,14 @@ class FakeBaxterNode:
         rospy.Subscriber(sdk.STOP_TOPIC, Empty, queued(self._on_stop), queue_size=10)
 
         self.limbs = {side: LimbNode(side, world, self.robot, self.faults, queued, self._delayed_commands,
-                                     rng[f'{side}_ik_faults'], self._T_base, self._arm_angles) for side in SIDES}
+                                     rng[f'{side}_ik_faults'], self._T_base, self._arm_angles, self.ros_time)
+                      for side in SIDES}
         self.grippers = {side: GripperNode(side, world, queued) for side in SIDES}
         self.head = HeadNode(world, self.robot, queued)
-        self.io = IONode(lambda side: world.range_at(sdk.arm_frames(side).hand_range, *RANGE_LIMITS), queued)
-        self.cameras = CamerasNode(world, image_encoding, rng['image_noise'], rng['frame_faults'], open_cameras)
+        self.io = IONode(lambda side: world.range_at(sdk.arm_frames(side).hand_range, *RANGE_LIMITS), queued,
+                         self.ros_time)
+        self.cameras = CamerasNode(world, image_encoding, rng['image_noise'], rng['frame_faults'], self.ros_time,
+                                   open_cameras)
         self._holders = [*self.limbs.values(), self.head]     # hold still on disable, stop and reset
         self._tickers = [*self.limbs.values(), self.io]       # per-step work before the publications
         own = [(rate, getattr(self, '_publish_' + key)) for key, rate in RATES_HZ.items()]
@@ -153,14 +160,20 @@ class FakeBaxterNode:
             for part in self._tickers:
                 part.tick(now)
             self._publish_due(now)
-            if ready_pub is None:
-                ready_pub = self._announce_ready()
             self.world.step()
-            self._pub['clock'].publish(Clock(clock=rospy.Time.from_sec(self.world.time)))
+            if self._clock_publisher is not None:
+                self._clock_publisher.publish(Clock(clock=rospy.Time.from_sec(self.world.time)))
+            if ready_pub is None:       # after the first /clock: a client started once ready has a clock
+                ready_pub = self._announce_ready()
             self._publish_respawns()
             self.pacer.pace(self.world.time)
-        rospy.loginfo('fake_baxter: stopped after %.1f s of simulated time (real-time factor %.2f)',
-                      self.world.time, self.pacer.measured_factor())
+        streaming = ''
+        if self.cameras.first_opened is not None:
+            wall_opened, sim_opened = self.cameras.first_opened
+            streaming = (f', {(self.world.time - sim_opened) / (time.monotonic() - wall_opened):.3f} since the first '
+                         f'camera opened {self.world.time - sim_opened:.1f} simulated s ago')
+        rospy.loginfo('fake_baxter: stopped after %.1f s of simulated time (real-time factor %.3f%s)',
+                      self.world.time, self.pacer.measured_factor(), streaming)
 
     def _announce_ready(self):
         """Latch /robot/sim/started (as the official simulator does) and log the one 'ready' line."""
@@ -168,11 +181,13 @@ class FakeBaxterNode:
         publisher.publish(Empty())
         age = _process_age()
         boot = '' if age is None else f' {age:.1f} s after start'
-        rospy.loginfo('fake_baxter ready%s: robot %s, cameras open: %s, real-time factor %s, faults: %s', boot,
+        rospy.loginfo('fake_baxter ready%s: robot %s, cameras open: %s, real-time factor %s, clock %s, faults: %s',
+                      boot,
                       'enabled' if self.robot.enabled else 'disabled (publish True on /robot/set_super_enable)',
                       ', '.join(self.cameras.open_names()) or 'none',
                       'as fast as possible' if self.pacer.real_time_factor == 0 else
-                      f'{self.pacer.real_time_factor:g}', self.faults.summary())
+                      f'{self.pacer.real_time_factor:g}',
+                      'sim (/clock)' if self.clock.publishes_clock else 'wall (no /clock)', self.faults.summary())
         return publisher
 
     def _inject_estop(self, now):
@@ -188,9 +203,12 @@ class FakeBaxterNode:
                 publish(self._stamp(now))
         self.cameras.capture_due(now)
 
-    @staticmethod
-    def _stamp(now):
-        return Header(stamp=rospy.Time.from_sec(now))
+    def ros_time(self, now):
+        """The ``rospy.Time`` stamp of simulated time ``now`` (s), as ``--clock`` says."""
+        return rospy.Time.from_sec(self.clock.seconds(now))
+
+    def _stamp(self, now):
+        return Header(stamp=self.ros_time(now))
 
     def _arm_angles(self):
         """{joint: rad} of the last published joint state (a copy: the IK services read it in their threads)."""
@@ -324,12 +342,19 @@ def parse_args(argv):
                                                       '(repeatable, at most two)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the image noise and of the random faults; default %(default)s')
+    parser.add_argument('--clock', choices=CLOCKS, default=DEFAULT_CLOCK,
+                        help='sim: publish /clock and set /use_sim_time (every node on simulated time; any '
+                             '--real-time-factor); wall: stamp the wall clock, paced at 1.0, no /clock, as a real '
+                             'robot; default %(default)s')
     parser.add_argument('--renderer', choices=RENDERERS, default='auto',
                         help='what draws the cameras: OpenGL through EGL (~5 ms a 640x400 frame) or PyBullet\'s '
                              'TinyRenderer (~75 ms); auto: EGL where it works, else TinyRenderer; default %(default)s')
     args = parser.parse_args(argv)
     if args.real_time_factor < 0 or not math.isfinite(args.real_time_factor):
         parser.error('--real-time-factor must be >= 0')
+    if args.clock == 'wall' and args.real_time_factor != 1:
+        parser.error(f'--clock wall runs at real time: --real-time-factor must be 1, got {args.real_time_factor:g} '
+                     f'(use --clock sim to run slower or faster)')
     if args.seed < 0:
         parser.error('--seed must be >= 0')
     if len({c[0] for c in args.open_camera}) > MAX_OPEN_CAMERAS:
@@ -356,15 +381,27 @@ def main(argv=None):
         sys.exit(2)
     with open(DEFAULT_URDF) as f:
         urdf_text = f.read()
-    # The fake Baxter owns the clock: every node (this one included) runs on /clock.
-    try:
-        rosgraph.Master('/' + NODE_NAME).setParam('/use_sim_time', True)
-    except OSError as error:
-        print(f'fake_baxter: error: no ROS master at {rosgraph.get_master_uri()} ({error})', file=sys.stderr)
-        sys.exit(1)
+    _agree_on_time(args.clock)
     rospy.init_node(NODE_NAME)
     rospy.loginfo('fake_baxter: cameras drawn by %s', world.renderer_description)
     node = FakeBaxterNode(world, urdf_text, real_time_factor=args.real_time_factor,
                           image_encoding=args.image_encoding, enable=args.enable,
-                          open_cameras=args.open_camera, seed=args.seed)
+                          open_cameras=args.open_camera, seed=args.seed, clock=args.clock)
     node.run()
+
+
+def _agree_on_time(clock):
+    """Set the master's ``/use_sim_time`` for ``--clock sim`` (the fake owns the clock: every node, this one
+    included, runs on ``/clock``); with ``--clock wall`` exit (code 2) if it is set: no ``/clock`` will come."""
+    master = rosgraph.Master('/' + NODE_NAME)
+    try:
+        if clock == 'sim':
+            master.setParam('/use_sim_time', True)
+        elif master.hasParam('/use_sim_time') and master.getParam('/use_sim_time'):
+            print('fake_baxter: error: --clock wall publishes no /clock, but /use_sim_time is true on the master '
+                  '(every node would wait for /clock): unset it (rosparam delete /use_sim_time) or use --clock sim',
+                  file=sys.stderr)
+            sys.exit(2)
+    except OSError as error:
+        print(f'fake_baxter: error: no ROS master at {rosgraph.get_master_uri()} ({error})', file=sys.stderr)
+        sys.exit(1)

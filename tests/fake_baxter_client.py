@@ -2,8 +2,9 @@
 
 ``Recorder`` keeps a topic's messages, ``publisher`` waits until the fake subscribes, ``sim_sleep`` waits in
 simulated time, ``edge`` brackets when a published state changed, ``Robot`` bundles the main topics of one fake
-Baxter, ``GripperAckClock`` reads the fake's own clock through the gripper protocol. Times are simulated seconds (header stamps, or this process's
-``rospy.get_time()`` which follows ``/clock``) unless a name says ``wall``; wall timeouts only bound waits.
+Baxter, ``GripperAckClock`` reads the fake's own clock through the gripper protocol. Times are the fake's seconds
+(simulated, or wall seconds under ``--clock wall``: header stamps, or this process's ``rospy.get_time()``) unless a
+name says ``wall``; wall timeouts only bound waits.
 """
 import collections
 import threading

@@ -222,3 +222,51 @@ def load_faults_mapping(path):
     load_faults(path)
     with open(path) as f:
         return yaml.safe_load(f).get('faults') or {}
+
+
+# ============================================================================================ multi-block tasks
+# run_trials.py --task sort|stack (bench/table_trials.py): random scenes of several 40 mm blocks for table_task.py.
+TABLE_TASK_SIDE = 0.04                            # m: table_task.py poses every block with one side length
+SORT_BINS = {'green': (0.45, 0.35), 'red': (0.45, 0.0)}     # --bin COLOUR:X,Y of the sort trials
+SORT_COUNTS = {'green': 2, 'red': 2}              # named squares per colour; plus one distractor
+STACK_AT = (0.47, 0.10)                           # --at of the stack trials
+STACK_ORDER = ('red', 'green', 'blue')            # --order, bottom first
+TABLE_TASK_AREA = ((0.58, 0.80), (-0.30, 0.48))   # (x range, y range) m where the random blocks stand
+TABLE_TASK_MIN_DISTANCE = 0.10                    # m between block centres (and from the bins / the tower)
+
+
+def table_task_places(task):
+    """The xy (m) a task's trials keep the random blocks away from: the bins' first slots or the tower."""
+    if task == 'sort':
+        return [(x, y - 0.08 * k) for colour, (x, y) in SORT_BINS.items() for k in range(SORT_COUNTS[colour])]
+    return [STACK_AT]
+
+
+def random_table_scene(rng, task, table=None, appearance=None, max_attempts=5000):
+    """A random scene dict for ``table_task.py sort`` (``SORT_COUNTS`` green and red squares and a distractor: a
+    blue or yellow block of any shape) or ``stack`` (a square of each ``STACK_ORDER`` colour): 40 mm blocks at
+    uniform random positions in ``TABLE_TASK_AREA`` with uniform yaws, each pickable from the ``down`` pose
+    (:func:`pickable`) and ``TABLE_TASK_MIN_DISTANCE`` from the others and from the task's places; start pose
+    ``down``. ``rng``: a ``numpy.random.Generator``."""
+    table = table or Table()
+    if task == 'sort':
+        kinds = [('square', colour) for colour, count in SORT_COUNTS.items() for _ in range(count)]
+        kinds.append((list(SHAPES)[rng.integers(len(SHAPES))], ('blue', 'yellow')[rng.integers(2)]))
+    elif task == 'stack':
+        kinds = [('square', colour) for colour in STACK_ORDER]
+    else:
+        raise ValueError(f"task must be 'sort' or 'stack', not {task!r}")
+    (x_low, x_high), (y_low, y_high) = TABLE_TASK_AREA
+    taken, objects = list(table_task_places(task)), []
+    for shape, colour in kinds:
+        for _ in range(max_attempts):
+            xy = rng.uniform((x_low, y_low), (x_high, y_high))
+            yaw = float(rng.uniform(-math.pi, math.pi))
+            if all(np.linalg.norm(xy - np.asarray(other)) >= TABLE_TASK_MIN_DISTANCE for other in taken) and \
+                    pickable(block_pose(xy, yaw, table.top_z), TABLE_TASK_SIDE, 'down'):
+                break
+        else:
+            raise RuntimeError(f'no place for a {colour} {shape} after {max_attempts} draws')
+        taken.append(xy)
+        objects.append(block_entry(shape, colour, TABLE_TASK_SIDE, yaw, xy))
+    return scene_dict(objects, 'down', table, **({} if appearance is None else {'appearance': appearance}))

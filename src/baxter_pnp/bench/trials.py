@@ -7,6 +7,7 @@ prints a per-mode table (:func:`summarise`, :func:`format_table`); ``trials.csv`
 plots go to ``--out``. ``--faults FILE`` and ``--distractor-same-colour`` run a batch under faults;
 ``--appearance clean|baxter|random`` sets the fake camera's look (``random``: a look per scene drawn from its
 seed, ``trial_scenes.trial_appearance``); every row records its conditions (:func:`condition`) and its look.
+``--task sort|stack`` runs ``table_task.py`` on random multi-block scenes instead (``table_trials``).
 ``--soak N`` runs N pick-and-place cycles in one application run against one fake that respawns the block
 (``soak.run_soak``), scoring each cycle with the ground truth and watching both processes' memory. See
 docs/trials.md.
@@ -37,11 +38,13 @@ from baxter_pnp.bench.ground_truth import (LIFT_THRESHOLD, GroundTruthMonitor, b
                                            pre_close_sample, write_ground_truth)
 from baxter_pnp.bench.records import format_number, percentile, write_rows
 from baxter_pnp.bench.soak import SOAK_PLACE_XY, soak_main
+from baxter_pnp.bench.table_trials import table_trials_main
 from baxter_pnp.bench.trial_scenes import APPEARANCES, load_faults_mapping, random_scene, trial_appearance
 from baxter_pnp.sim.appearance import describe
 from baxter_pnp.sim.scene import Scene, SceneError
 
 MODES = pick.MODES
+TABLE_TASKS = ('sort', 'stack')     # --task: table_task.py trials (bench/table_trials.py)
 START_POSES = ('down', 'angled')
 PLACE_TOLERANCE = 0.01          # m: a placed block must end this close to the requested position
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
@@ -329,17 +332,28 @@ def parse_args(argv):
     parser.add_argument('--appearance', choices=APPEARANCES, default='clean',
                         help="the fake camera's look (docs/fake_baxter.md \"Appearance\"): a preset for every "
                              "scene, or random: a look per scene drawn from its seed (default %(default)s)")
-    parser.add_argument('--timeout', type=float, default=300.0,
-                        help='wall seconds per trial, or per soak cycle (default %(default)s)')
+    parser.add_argument('--timeout', type=float,
+                        help='wall seconds per trial, or per soak cycle (default 300; --task sort|stack: 900)')
     parser.add_argument('--place', metavar='X,Y', type=lambda text: [float(v) for v in text.split(',')],
                         help='also place each block at this table position (base, m); scored by where it ends '
                              '(soak: default %g,%g)' % SOAK_PLACE_XY)
     parser.add_argument('--soak', type=int, metavar='N', help='instead of trials: N pick-and-place cycles in one '
                         'run of pick_square.py --cycles N against one fake that respawns the block')
+    parser.add_argument('--task', choices=('pick',) + TABLE_TASKS, default='pick',
+                        help='pick: pick_square.py on one target; sort, stack: table_task.py on random multi-block '
+                             'scenes, one mode (default pbvs), scored by the ground truth (bench/table_trials.py)')
     parser.add_argument('--out', default='trials_out', help='output directory (default %(default)s)')
     parser.add_argument('--from-csv', nargs='+', metavar='CSV', help='run nothing: merge these trials.csv files '
                         'into --out and report them (tables, summary.json, plots)')
     args = parser.parse_args(argv)
+    args.timeout = args.timeout or (300.0 if args.task == 'pick' else 900.0)
+    if args.task != 'pick':
+        if (args.soak is not None or args.place is not None or args.distractors or args.distractor_same_colour
+                or args.faults or args.from_csv or args.start_pose):
+            parser.error('--task %s takes no --soak, --place, --distractors, --faults, --from-csv or --start-pose'
+                         % args.task)
+        args.mode = args.mode or 'pbvs'
+        return args
     if args.soak is not None:
         if args.soak < 2:
             parser.error('--soak needs at least 2 cycles')
@@ -378,6 +392,8 @@ def main(argv=None):
         return 2
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
+    if args.task != 'pick':
+        return table_trials_main(args, out, command)
     if args.soak is not None:
         return soak_main(args, faults, out, command)
     modes = MODES if args.mode == 'all' else (args.mode,)

@@ -65,7 +65,8 @@ class Motion:
         current branch: IK every ``waypoint_spacing`` (and 10 deg at most), each seeded with the previous
         solution. Followed without stopping, the gripper stays within a millimetre or so of the straight
         line (a descent cannot swing the fingers into the block, even near the elbow's singularity).
-        None when a waypoint has no solution."""
+        None when a waypoint has no solution, or when one jumps to another branch (a joint turning more than the
+        safety's joint step between two waypoints, e.g. the wrist past its limit: a joint move instead)."""
         T_start = self.limb.endpoint_pose()
         translation, rotation = pose_error(T_start, T_base_gripper)
         spacing = self.session.config.waypoint_spacing
@@ -77,6 +78,11 @@ class Motion:
             except robot.IKFailure as error:
                 rospy.logwarn('%s: %s: waypoint %d/%d has no IK solution on this branch (%s)'
                               % (self.log_name, what, k, count, error))
+                return None
+            jump = max(abs(path[-1][name] - path[-2][name]) for name in path[-1])
+            if jump > self.session.safety.limits.max_joint_step:
+                rospy.logwarn('%s: %s: waypoint %d/%d is on another IK branch (a joint turns %.2f rad)'
+                              % (self.log_name, what, k, count, jump))
                 return None
         return path[1:]
 
@@ -92,13 +98,18 @@ class Motion:
 
     def move_to_joints(self, q, what):
         """Safety-checked position move along the straight joint-space line to ``q`` (rad by joint name), cut
-        into segments of at most the safety's joint step (a start-pose move is longer than one servo step)."""
+        into segments of at most the safety's joint step (a start-pose move is longer than one servo step) along
+        which the gripper tip travels at most half the safety's Cartesian step (a long move across the table)."""
         q_start = self.limb.joint_angles()
         names = list(q_start)
         q_target = np.array([q[name] for name in names], dtype=float)
         q_from = np.array([q_start[name] for name in names], dtype=float)
-        max_step = self.session.safety.limits.max_joint_step
-        segments = max(1, int(np.ceil(np.max(np.abs(q_target - q_from)) / max_step)))
+        limits, kinematics = self.session.safety.limits, self.session.kinematics
+        order = [names.index(name) for name in kinematics.joint_names]
+        tips = [kinematics.fk((q_from + (q_target - q_from) * s)[order])[:3, 3] for s in np.linspace(0, 1, 21)]
+        tip_travel = sum(np.linalg.norm(b - a) for a, b in zip(tips, tips[1:]))
+        segments = max(1, int(np.ceil(np.max(np.abs(q_target - q_from)) / limits.max_joint_step)),
+                       int(np.ceil(tip_travel / (0.5 * limits.max_cartesian_step))))
         rospy.loginfo('%s: %s: joint move in %d segment(s)' % (self.log_name, what, segments))
         self.follow_path([dict(zip(names, q_from + (q_target - q_from) * k / segments))
                           for k in range(1, segments + 1)], what)

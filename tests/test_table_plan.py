@@ -1,0 +1,101 @@
+"""The multi-block planner (table_plan.py, pure): bin rows, free slots, stacks, the user's errors."""
+import numpy as np
+import pytest
+
+from baxter_pnp import table_plan
+from baxter_pnp.table_map import MapBlock
+from baxter_pnp.table_plan import PlanError
+
+
+def block(block_id, colour, xy, shape='square', z=-0.13):
+    return MapBlock(block_id, shape, colour, np.array([xy[0], xy[1], z]), 0.001, 0.0, 1, 0.0, [], np.zeros(2))
+
+
+SCENE = [block(1, 'green', (0.70, 0.25)), block(2, 'red', (0.62, 0.10)), block(3, 'green', (0.55, 0.30)),
+         block(4, 'red', (0.75, 0.05)), block(5, 'blue', (0.60, 0.40), shape='triangle')]      # 5: the distractor
+
+
+def test_slots_run_in_rows_spaced_apart():
+    row = [s for s, _ in zip(table_plan.slots((0.5, 0.2), (0, -1), 0.08), range(3))]
+    np.testing.assert_allclose(row, [(0.5, 0.2), (0.5, 0.12), (0.5, 0.04)])
+    grid = [s for s, _ in zip(table_plan.slots((0.5, 0.2), (0, -1), 0.08, per_row=2), range(3))]
+    np.testing.assert_allclose(grid, [(0.5, 0.2), (0.5, 0.12), (0.58, 0.2)])     # next row: +90 deg from -y is +x
+
+
+def test_sort_puts_every_named_block_in_its_bin_row_and_leaves_the_rest():
+    bins = {'green': (0.50, 0.10), 'red': (0.80, 0.30)}
+    moves = table_plan.plan_sort(SCENE, bins)
+    assert sorted(m.block_id for m in moves) == [1, 2, 3, 4]            # not the blue distractor
+    for m in moves:
+        slot_row = [s for s, _ in zip(table_plan.slots(bins[m.colour]), range(2))]
+        assert any(np.allclose(m.to_xy, s) for s in slot_row), m
+    destinations = np.array([m.to_xy for m in moves])
+    gaps = np.linalg.norm(destinations[:, None] - destinations[None], axis=2) + np.eye(len(moves))
+    assert gaps.min() >= table_plan.SLOT_SPACING - 1e-9                 # they do not touch
+    for m in moves:                                                      # never where another block stands
+        others = [b for b in SCENE if b.id != m.block_id]
+        assert table_plan.is_free(m.to_xy, others), m
+
+
+def test_sort_skips_a_slot_where_a_block_stands_and_keeps_one_already_in_its_bin():
+    blocks = [block(1, 'green', (0.50, 0.10)), block(2, 'green', (0.70, 0.30)), block(3, 'red', (0.50, 0.02))]
+    moves = table_plan.plan_sort(blocks, {'green': (0.50, 0.10)})
+    assert [m.block_id for m in moves] == [2]                            # block 1 is in the bin's first slot
+    np.testing.assert_allclose(moves[0].to_xy, (0.50, -0.06))            # slot 2 is taken by the red block
+
+
+def test_sort_by_shape_and_the_errors_a_user_sees():
+    moves = table_plan.plan_sort(SCENE, {'blue': (0.5, 0.1)}, shape='square')
+    assert moves == []                                                   # the blue block is a triangle
+    with pytest.raises(PlanError, match='out of reach'):
+        table_plan.plan_sort(SCENE, {'green': (0.5, 0.1)}, placeable=lambda xy: False)
+    with pytest.raises(PlanError, match='COLOUR:X,Y'):
+        table_plan.parse_bin('green')
+    with pytest.raises(PlanError, match='X,Y in metres'):
+        table_plan.parse_bin('green:0.5')
+    assert table_plan.parse_bin(' red :0.5,-0.1') == ('red', (0.5, -0.1))
+    with pytest.raises(PlanError, match='at least two colours'):
+        table_plan.parse_order('red')
+
+
+def test_clear_moves_every_block_into_one_area_in_rows():
+    moves = table_plan.plan_clear(SCENE, (0.45, 0.0), per_row=3)
+    assert sorted(m.block_id for m in moves) == [1, 2, 3, 4, 5]
+    area = [s for s, _ in zip(table_plan.slots((0.45, 0.0), per_row=3), range(6))]
+    assert all(any(np.allclose(m.to_xy, s) for s in area) for m in moves)
+    assert len({m.to_xy for m in moves}) == 5
+
+
+def test_stack_order_levels_and_a_taken_spot():
+    moves = table_plan.plan_stack(SCENE, (0.45, -0.1), ['red', 'green', 'blue'])
+    assert [(m.colour, m.level) for m in moves] == [('red', 1), ('green', 2), ('blue', 3)]
+    assert moves[0].block_id == 2 and moves[1].block_id == 3                # the nearest of each colour
+    assert all(m.to_xy == (0.45, -0.1) for m in moves)
+    in_place = table_plan.plan_stack(SCENE, (0.62, 0.10), ['red', 'green'])    # the red block is there already
+    assert [(m.colour, m.level) for m in in_place] == [('green', 2)]
+    with pytest.raises(PlanError, match='taken by the green square'):
+        table_plan.plan_stack(SCENE, (0.70, 0.26), ['red', 'green'])
+    with pytest.raises(PlanError, match='no yellow left'):
+        table_plan.plan_stack(SCENE, (0.45, -0.1), ['red', 'yellow'])
+    with pytest.raises(PlanError, match='no green square left on the table for level 3'):
+        table_plan.plan_stack(SCENE, (0.45, -0.1), ['green', 'green', 'green'], shape='square')
+
+
+def test_levels_displaced_blocks_and_the_survey_line():
+    assert table_plan.level_of(-0.13, -0.15, 0.02, 0.005) == 1
+    assert table_plan.level_of(-0.089, -0.15, 0.02, 0.005) == 3
+    assert table_plan.level_of(-0.12, -0.15, 0.02, 0.005) is None       # half a block up: knocked over
+    after = [block(9, 'green', (0.70, 0.25)), block(8, 'red', (0.66, 0.10))]
+    moved = table_plan.displaced(SCENE[:2], after, moved_ids=())
+    assert [b.id for b in moved] == [2]                                  # the red block was pushed 4 cm
+    assert table_plan.displaced(SCENE[:2], after, moved_ids=(2,)) == []
+    line = table_plan.block_line(SCENE[0])
+    assert line.startswith('block 1: green square at x 700.0 y 250.0 z -130.0 mm'), line
+
+
+def test_an_estimate_put_on_its_known_height_along_the_viewing_ray():
+    camera = np.array([0.5, 0.1, 0.3])
+    truth = np.array([0.6, 0.15, -0.11])
+    T = np.eye(4)
+    T[:3, 3] = camera + 0.96 * (truth - camera)        # 4 % short in depth: 11 mm high, 4 mm off laterally
+    np.testing.assert_allclose(table_plan.on_height(T, camera, -0.11)[:3, 3], truth, atol=1e-12)

@@ -21,7 +21,7 @@ STAMP_VENV := $(VENV)/.stamp-requirements
 GENERATED := $(ROOT)/src/baxter_pnp/_generated/baxter_core_msgs/__init__.py
 PTH := $(VENV)/lib/python3.11/site-packages/baxter_pnp.pth
 
-.PHONY: all setup test demo demo-perception bench-perception bench-render bench-hand-eye bench-real-time clean
+.PHONY: all setup test demo demo-perception bench-perception bench-render bench-hand-eye bench-real-time rviz-screenshot clean
 
 all: setup
 
@@ -73,6 +73,14 @@ bench-hand-eye: setup
 # The fake's real-time factor while the camera streams and a pick runs (paced); README "Fake Baxter".
 bench-real-time: setup
 	$(PY) scripts/bench_real_time.py
+
+# rviz (config/baxter_pnp.rviz) on Xvfb after a table survey on the fake: docs/images/rviz.png. rviz and Xvfb are
+# only needed here (and for `roslaunch ... rviz:=true`), so they are installed here, not by setup.
+RVIZ_APT_PACKAGES := rviz xvfb xauth
+rviz-screenshot: setup
+	@dpkg -s $(RVIZ_APT_PACKAGES) >/dev/null 2>&1 || \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $(RVIZ_APT_PACKAGES) >/dev/null
+	$(PY) scripts/rviz_screenshot.py
 
 clean:
 	rm -rf $(ROOT)/src/baxter_pnp/_generated out .pytest_cache

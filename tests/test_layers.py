@@ -24,7 +24,8 @@ FAKE_AND_BENCH_SCRIPTS = {'fake_baxter.py': 'sim.node', 'run_trials.py': 'bench.
                           'run_experiments.py': 'bench.experiments', 'bench_perception.py': 'bench.perception_bench',
                           'demo.py': 'bench.demo', 'perception_demo.py': 'bench.perception_demo',
                           'bench_render.py': 'bench.render_bench', 'bench_appearance.py': 'bench.appearance_stats',
-                          'bench_hand_eye.py': 'bench.hand_eye_bench', 'bench_real_time.py': 'bench.real_time_bench'}
+                          'bench_hand_eye.py': 'bench.hand_eye_bench', 'bench_real_time.py': 'bench.real_time_bench',
+                          'rviz_screenshot.py': 'bench.rviz_screenshot'}
 
 
 def modules():

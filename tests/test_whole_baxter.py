@@ -217,13 +217,15 @@ def test_joint_recorder_then_joint_position_file_playback(fake, tmp_path, keeps_
                ('left_lower_button', 'left_upper_button', 'right_lower_button', 'right_upper_button')}
     target = dict(zip(limbs['right'].joint_names(), [0.3, -0.4, 0.2, 1.0, -0.2, 0.9, 0.3]))
     path = tmp_path / 'recording.csv'
+    # the lower button held 1.8 s: the gripper opens in ~0.5 s, and under load the state this client reads lags
+    # (0.8 s once left it at 64 % open in the recording)
     rate, start, presses = rospy.Rate(20), rospy.get_time(), [(0.2, 'right_lower_button', True),
-                                                               (1.0, 'right_lower_button', False),
-                                                               (1.0, 'right_upper_button', True)]
+                                                               (2.0, 'right_lower_button', False),
+                                                               (2.0, 'right_upper_button', True)]
     with open(path, 'w') as f:
         f.write('time,' + ','.join(limbs['left'].joint_names()) + ',left_gripper,'
                 + ','.join(limbs['right'].joint_names()) + ',right_gripper\n')
-        while rospy.get_time() - start < 3.0:
+        while rospy.get_time() - start < 4.0:
             while presses and rospy.get_time() - start > presses[0][0]:     # the person's hand on the cuff
                 press(*presses.pop(0)[1:])
             if buttons['right_lower_button'].state:
@@ -238,7 +240,8 @@ def test_joint_recorder_then_joint_position_file_playback(fake, tmp_path, keeps_
             rate.sleep()
     press('right_upper_button', False)
     rows = np.loadtxt(path, delimiter=',', skiprows=1)
-    assert buttons['right_lower_button'].changes == [True, False] and buttons['right_upper_button'].changes == [True]
+    # the upper button's release (just above) may or may not have arrived yet
+    assert buttons['right_lower_button'].changes == [True, False] and buttons['right_upper_button'].changes[:1] == [True]
     assert rows[:, 16].max() > 90.0 and rows[-1, 16] < 10.0          # right gripper: opened, then closed (buttons)
     assert np.abs(rows[-1, 9:16] - rows[0, 9:16]).max() > 0.3       # the right arm moved
     for side, columns in (('left', slice(1, 8)), ('right', slice(9, 16))):   # playback: first row

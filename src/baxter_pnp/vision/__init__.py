@@ -36,6 +36,10 @@ Beyond the thesis (all switchable in the YAML):
   face can clip one, and Douglas-Peucker then keeps both ends of the cut; an edge whose neighbours,
   extended, meet in a point adding less than ``cut_corner_area_fraction`` of the area is replaced by
   that point (a true corner adds 8 % or more even in strong perspective). 0 disables it.
+- Flat vertices (``remove_flat_vertices``, after the cut corners): a vertex whose triangle with its
+  neighbours is less than ``flat_vertex_area_fraction`` (8 %) of the area is a bend in a side (the outline
+  following a side-face sliver or a grid line along part of it) and is dropped; a regular polygon's true
+  corner is a sixth of its area or more. 0 disables it.
 - Top-face isolation (``isolate_top_face``): in oblique views the side faces (same hue, darker) join
   the blob and turn a square into a hexagon. Under light from above the table the top face is the
   brightest face: V of the original image, inside the blob, is split by Otsu's threshold (repeated
@@ -66,7 +70,8 @@ from baxter_pnp.vision.colour import (LAPLACIAN_KERNEL, colour_mask, find_blobs,
 from baxter_pnp.vision.config import DEFAULT_VISION_YAML, RoiConfig, SubpixelConfig, TopFaceConfig, VisionConfig
 from baxter_pnp.vision.detection import Detection, detect, draw_detections, select_target, validate_image
 from baxter_pnp.vision.polygon import (SHAPE_OF_VERTEX_COUNT, approximate_polygon, classify_shape, fit_polygon_sides,
-                                       merge_close_vertices, order_vertices, remove_cut_corners)
+                                       merge_close_vertices, order_vertices, remove_cut_corners,
+                                       remove_flat_vertices)
 from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
@@ -75,4 +80,5 @@ __all__ = ['DEFAULT_VISION_YAML', 'LAPLACIAN_KERNEL', 'SHAPE_OF_VERTEX_COUNT', '
            'detect', 'draw_detections', 'find_blobs', 'fit_polygon_sides', 'gamma_lut', 'isolate_top_face',
            'laplacian_sharpen', 'lowpass', 'lowpass_kernel', 'lowpass_kernel_1d', 'merge_close_vertices',
            'open_close', 'order_vertices', 'oversaturate', 'refine_vertices', 'remove_cut_corners',
+           'remove_flat_vertices',
            'saturation_threshold', 'select_target', 'validate_image']

@@ -78,8 +78,9 @@ class SdkLimb:
         self._pub_speed = rospy.Publisher(ns + 'set_speed_ratio', Float64, latch=True, queue_size=10)
         self._pub_command = rospy.Publisher(ns + 'joint_command', msg.JointCommand, tcp_nodelay=True, queue_size=10)
         self._pub_timeout = rospy.Publisher(ns + 'joint_command_timeout', Float64, latch=True, queue_size=10)
-        self._subs = [rospy.Subscriber(ns + 'endpoint_state', msg.EndpointState, self._on_endpoint),
-                      rospy.Subscriber('robot/joint_states', JointState, self._on_joints, tcp_nodelay=True)]
+        self._subs = [rospy.Subscriber(ns + 'endpoint_state', msg.EndpointState, self._on_endpoint, queue_size=1,
+                                       tcp_nodelay=True),
+                      rospy.Subscriber('robot/joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True)]
         wait_for(lambda: len(self._angles) > 0, timeout_msg=f'{side} limb init failed to get current joint_states')
         wait_for(lambda: self._endpoint is not None, timeout_msg=f'{side} limb init failed to get endpoint_state')
 

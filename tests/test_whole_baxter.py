@@ -177,13 +177,17 @@ def test_joint_velocity_wobbler_and_smoke_move_arms(fake):
         arm.exit_control_mode()
     rospy.sleep(0.5)
     assert max(abs(v) for arm in arms.values() for v in arm.joint_velocities().values()) < 0.05    # holding
-    for move in ([0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0], [0.5, -0.8, 2.8, 0.15, 0.0, 1.9, 2.8],
-                 [-0.1, -0.8, -1.0, 2.5, 0.0, -1.4, -2.8], [0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0]):
+    for index, move in enumerate(([0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0], [0.5, -0.8, 2.8, 0.15, 0.0, 1.9, 2.8],
+                                  [-0.1, -0.8, -1.0, 2.5, 0.0, -1.4, -2.8], [0.0, -0.55, 0.0, 0.75, 0.0, 1.26, 0.0])):
         targets = {side: dict(zip(arm.joint_names(), move)) for side, arm in arms.items()}
-        wait_for(lambda: all(all(abs(a - arm.joint_angle(j)) < JOINT_ANGLE_TOLERANCE for j, a in targets[side].items())
-                             for side, arm in arms.items()),
-                 timeout=15.0, rate=100, timeout_msg='MoveArms: the arms failed to reach the joint positions',
-                 body=lambda: [arm.set_joint_positions(targets[side]) for side, arm in arms.items()])
+        errors = lambda: {j: round(a - arm.joint_angle(j), 4) for side, arm in arms.items()
+                          for j, a in targets[side].items() if abs(a - arm.joint_angle(j)) >= JOINT_ANGLE_TOLERANCE}
+        try:
+            wait_for(lambda: not errors(), timeout=15.0, rate=100,
+                     timeout_msg='MoveArms: the arms failed to reach the joint positions',
+                     body=lambda: [arm.set_joint_positions(targets[side]) for side, arm in arms.items()])
+        except OSError as error:
+            raise AssertionError(f'move {index}: {error}; joint errors (rad) {errors()}') from error
     robot.disable()
 
 

@@ -98,13 +98,12 @@ def test_bad_scene_is_a_clear_error_with_exit_code_2(tmp_path):
     assert 'objects[0].side' in process.log()
 
 
-# README "Fake Baxter" gives these. Measured on the 2-core machine (2026-11) while another full test suite ran, in
-# simulated seconds per CPU second of the fake (all its threads: the real-time factor it reaches with the CPU it gets;
-# other processes' load takes cores away, which this does not count): 2.4-4.1 without a camera, 0.96-1.31 with
-# one (angled start pose, OpenGL through EGL: per frame ~7 ms to draw and undistort, ~13-18 ms of image noise, which
-# now dominates); per wall second 1.7-2.9 and 0.87-1.39. PyBullet's TinyRenderer gave 0.41-0.46 with a camera.
-# Asserted per CPU second, below twice these (a frame skipped) and above a third without a camera, two thirds with
-# one (a frame rendered twice, or by TinyRenderer).
+# README "Fake Baxter" gives these. Measured on the 2-core machine (2026-11), in simulated seconds per CPU second of
+# the fake (all its threads: the real-time factor it reaches with the CPU it gets; other processes' load takes
+# cores away, which this does not count): 3.6-3.7 without a camera, 1.8-1.9 with one (angled start pose, OpenGL
+# through EGL, frames drawn in their own thread; session 8); per wall second 3.6 and 2.3-2.5. PyBullet's
+# TinyRenderer gave 0.41-0.46 with a camera. Asserted per CPU second: above a third without a camera, above two
+# thirds with one (a frame rendered twice, or by TinyRenderer), and a camera costs CPU (a frame skipped would not).
 SIM_PER_CPU_SECOND_NO_CAMERA = 3.0
 SIM_PER_CPU_SECOND_CAMERA = 1.1
 
@@ -158,8 +157,8 @@ def test_camera_opened_at_boot_publishes_at_its_fps_and_the_fake_runs_at_its_mea
     record_property('real_time_factor_no_camera', without_camera)
     print(f'\nreal-time factor: {with_camera:.2f} with left_hand_camera 640x400 @ 20 fps, {without_camera:.2f} '
           f'without a camera; per CPU second of the fake: {with_camera_cpu:.2f} and {without_camera_cpu:.2f}')
-    assert SIM_PER_CPU_SECOND_CAMERA * 2 / 3 < with_camera_cpu < 2 * SIM_PER_CPU_SECOND_CAMERA
-    assert SIM_PER_CPU_SECOND_NO_CAMERA / 3 < without_camera_cpu < 2 * SIM_PER_CPU_SECOND_NO_CAMERA
+    assert SIM_PER_CPU_SECOND_CAMERA * 2 / 3 < with_camera_cpu < without_camera_cpu    # frames cost CPU
+    assert SIM_PER_CPU_SECOND_NO_CAMERA / 3 < without_camera_cpu
     assert published_rate_hz(received) == pytest.approx(20.0, rel=0.10)
     assert rate_hz([m.header.stamp.to_sec() for m in received]) == pytest.approx(20.0, rel=0.10)
     assert len(received) >= 10

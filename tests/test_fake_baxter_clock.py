@@ -6,12 +6,15 @@ before a sim-clock fake's first ``/clock``. Each test has its own master (the se
 """
 import json
 import os
+import subprocess
 import time
 
 import pytest
+import yaml
 
-from baxter_pnp.sim.clock import MessageClock, RealTimePacer
+from baxter_pnp.sim.clock import MessageClock, RealTimePacer, default_clock
 from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, start_script, wait_until
+from baxter_pnp.sim.node import parse_args
 
 CLIENT = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'startup_client.py')
 CLIENT_TIMEOUT = 120.0          # wall s for a client to finish on a loaded machine (its own waits are 1-2 s)
@@ -32,6 +35,35 @@ def test_message_clock_stamps_simulated_or_paced_wall_time():
         MessageClock('wall', RealTimePacer(0.0))
     with pytest.raises(ValueError, match='one of sim, wall'):
         MessageClock('gps', pacer)
+
+
+def test_the_default_clock_is_the_wall_clock_at_real_time_and_simulated_time_otherwise():
+    assert default_clock(1.0) == 'wall' and default_clock(0.0) == 'sim' and default_clock(2.5) == 'sim'
+    assert parse_args([]).clock == 'wall'
+    assert parse_args(['--real-time-factor', '0']).clock == 'sim'
+    assert parse_args(['--clock', 'sim']).clock == 'sim'
+    with pytest.raises(SystemExit):
+        parse_args(['--clock', 'wall', '--real-time-factor', '0'])
+
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.mark.parametrize('launch_args, clock', [([], 'wall'), (['real_time_factor:=0'], 'sim'),
+                                                 (['clock:=sim'], 'sim'), (['real_time_factor:=2', 'clock:=sim'], 'sim')])
+def test_fake_baxter_launch_picks_the_clock_and_sets_use_sim_time_only_for_sim(tmp_path, launch_args, clock):
+    env = {k: v for k, v in os.environ.items() if not k.startswith('ROS_')}
+    env.update(ROS_PACKAGE_PATH=REPO, ROS_HOME=str(tmp_path))
+    launch = os.path.join(REPO, 'launch', 'fake_baxter.launch')
+
+    def roslaunch(*options):
+        result = subprocess.run(['roslaunch', *options, launch, *launch_args], env=env, capture_output=True,
+                                text=True, timeout=60)
+        assert result.returncode == 0, result.stdout + result.stderr
+        return result.stdout
+    assert f'--clock {clock} ' in roslaunch('--args', '/fake_baxter')
+    params = yaml.safe_load(roslaunch('--dump-params')) or {}
+    assert params.get('/use_sim_time', False) is (clock == 'sim')
 
 
 def start_clients(master, count, log_dir, tag):

@@ -7,9 +7,15 @@ As on the robot, a camera's image topics exist only while it is open: ``open`` a
 devices") closes every camera. Each camera renders from its own URDF link (``left_hand_camera``, ``right_hand_camera``,
 ``head_camera``: the head camera pans with the head). The camera faults (``faults.camera``: drops, latency, stall,
 blackout, brightness) act here. The camera bank (modes, at most two open) is ``sim.cameras``'s; its services run
-in their own threads, the frames are captured by the main loop (``capture_due``), publishers under a lock.
+in their own threads, publishers under a lock. Frames: the main loop reads the scene at each frame's instant
+(``capture_due``, ``SimWorld.camera_frame``); a thread of their own draws and forms them (OpenGL, noise, the
+message: ~10 ms a 640x400 frame) while the physics steps on, on the other core; the main loop publishes each
+once drawn and its latency fault has passed. At most ``FRAMES_IN_FLIGHT`` wait to be drawn: a fake running
+faster than its camera thread waits for it, and no frame is dropped.
 """
+import collections
 import errno
+import queue
 import threading
 import time
 
@@ -25,6 +31,35 @@ from baxter_pnp.sim.cameras import RESOLUTION_HALF_CONTROL, CameraBank, camera_s
 from baxter_pnp.sim.faults import DelayLine
 
 CAMERAS_RESET_SERVICE = '/cameras/reset'
+FRAMES_IN_FLIGHT = 2           # frames captured and waiting to be drawn before the main loop waits
+
+
+class FrameThread:
+    """Runs frame jobs (callables) in one thread of its own, in the order given. ``submit`` blocks while
+    ``FRAMES_IN_FLIGHT`` jobs wait; ``finished()`` gives the results so far, in order, as (key, result). A job
+    that raises is logged and gives no result."""
+
+    def __init__(self, max_waiting=FRAMES_IN_FLIGHT):
+        self._jobs = queue.Queue(maxsize=max_waiting)
+        self._done = collections.deque()
+        threading.Thread(target=self._run, name='camera frames', daemon=True).start()
+
+    def submit(self, key, job):
+        self._jobs.put((key, job))
+
+    def finished(self):
+        results = []
+        while self._done:
+            results.append(self._done.popleft())
+        return results
+
+    def _run(self):
+        while True:
+            key, job = self._jobs.get()
+            try:
+                self._done.append((key, job()))
+            except Exception as error:       # a frame lost, the stream goes on (logged)
+                rospy.logerr(f'a camera frame failed: {error!r}')
 
 
 class CamerasNode:
@@ -37,7 +72,8 @@ class CamerasNode:
         self.faults = world.scene.faults.camera
         self._noise_rng, self._frame_fault_rng = noise_rng, frame_fault_rng
         self.bank = CameraBank()
-        self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) captured, not published
+        self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) drawn, not published
+        self._frames = FrameThread()                              # frames captured, being drawn
         self._publishers = {}             # {open camera: (image, camera_info) publishers}
         self._publishers_lock = threading.Lock()
         self.first_opened = None          # (wall s of time.monotonic, simulated s) of the first camera opened
@@ -102,9 +138,11 @@ class CamerasNode:
 
     # ------------------------------------------------------------------ frames (the main loop)
     def capture_due(self, now):
-        """Render the frames due at ``now`` (s) and publish those whose latency has passed (if still open)."""
+        """Capture the frames due at ``now`` (s) and publish those drawn whose latency has passed (if still open)."""
         for name, cam in self.bank.due(now):
             self._capture(name, cam, now)
+        for (captured, name, info), image in self._frames.finished():
+            self._delayed_frames.put(captured, (name, image, info))
         for name, image, info in self._delayed_frames.due(now):
             with self._publishers_lock:
                 if name in self._publishers and self.bank.is_open(name):
@@ -113,11 +151,12 @@ class CamerasNode:
                     info_publisher.publish(info)
 
     def _capture(self, name, cam, now):
-        """Render the frame due at ``now`` (s) and queue it for publication after the camera latency fault;
-        the frame-drop, stall, blackout and brightness faults apply here."""
+        """Capture the frame due at ``now`` (s): the scene read now, drawn by the frame thread, published after
+        the camera latency fault; the frame-drop, stall, blackout and brightness faults apply here."""
         fault_time = self.world.fault_time(now)
         if not self.faults.publishes(fault_time, self._frame_fault_rng.random()):
             return
         header = Header(stamp=self._ros_time(now), frame_id='/' + name)     # as the robot: leading /
-        image = self.world.render_camera(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
-        self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header), cam.camera_info(header)))
+        frame = self.world.camera_frame(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
+        encoding = self.image_encoding
+        self._frames.submit((now, name, cam.camera_info(header)), lambda: bgr_to_msg(frame(), encoding, header))

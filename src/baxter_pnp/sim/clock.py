@@ -11,7 +11,13 @@ publishes ``/clock``) or, as a real robot, the wall clock (``wall``).
 import time
 
 CLOCKS = ('sim', 'wall')          # --clock: simulated time on /clock, or the wall clock as the real robot
-DEFAULT_CLOCK = 'sim'
+HARNESS_CLOCK = 'sim'             # tests and trial batches: unpaced on /clock, clients started after the first
+
+
+def default_clock(real_time_factor):
+    """The fake's clock when none is given: the wall clock, as a real robot, when paced at 1.0; simulated time
+    (``/clock``) at any other ``real_time_factor``: only simulated time runs slower or faster than the wall."""
+    return 'wall' if float(real_time_factor) == 1.0 else 'sim'
 
 
 class RateSchedule:
@@ -40,12 +46,13 @@ class RateSchedule:
 class RealTimePacer:
     """Sleeps so that simulated time advances ``real_time_factor`` times as fast as wall time.
 
-    ``real_time_factor`` 0 means no sleeping at all. When the simulation falls behind by more than
-    ``max_lag`` wall seconds (CPU too slow), the reference is moved instead of rushing to catch up.
+    ``real_time_factor`` 0 means no sleeping at all. A simulation behind by up to ``max_lag`` wall seconds (a
+    busy moment: a burst of frames, the client's computation on the shared cores) catches up at full speed; one
+    behind by more (a CPU too slow) moves the reference instead, and the time is lost (``resets``, ``lost``).
     ``wall_clock`` and ``sleep`` are injectable for tests.
     """
 
-    def __init__(self, real_time_factor=1.0, max_lag=0.1, wall_clock=time.monotonic, sleep=time.sleep):
+    def __init__(self, real_time_factor=1.0, max_lag=0.3, wall_clock=time.monotonic, sleep=time.sleep):
         if real_time_factor < 0:
             raise ValueError(f'real-time factor must be >= 0, got {real_time_factor!r}')
         self.real_time_factor = float(real_time_factor)
@@ -54,6 +61,7 @@ class RealTimePacer:
         self._reference = None          # (wall time, sim time) that pacing is measured from
         self._start = None              # (wall time, sim time) of the first call, for measured_factor()
         self._last = None
+        self.resets, self.lost = 0, 0.0    # times the reference was moved, simulated s given up doing so
 
     def pace(self, sim_time):
         """Sleep until wall time catches up with ``sim_time`` (simulated seconds)."""
@@ -68,6 +76,8 @@ class RealTimePacer:
         if target > wall:
             self._sleep(target - wall)
         elif wall - target > self.max_lag:
+            self.resets += 1
+            self.lost += (wall - target) * self.real_time_factor
             self._reference = (wall, sim_time)
 
     def wall_time_of(self, sim_time):
@@ -78,11 +88,14 @@ class RealTimePacer:
         wall_ref, sim_ref = self._reference
         return wall_ref + (sim_time - sim_ref) / self.real_time_factor
 
-    def measured_factor(self):
-        """Simulated seconds per wall second since the first ``pace`` call (0 before two calls)."""
-        if self._start is None or self._last[0] <= self._start[0]:
+    def measured_factor(self, since=None):
+        """Simulated seconds per wall second from ``since`` ((wall s, simulated s); default: the first ``pace``
+        call) to the last ``pace`` call (0 before two calls). Ends at the last step paced, so the time a shutdown
+        takes does not count."""
+        start = since or self._start
+        if start is None or self._last is None or self._last[0] <= start[0]:
             return 0.0
-        return (self._last[1] - self._start[1]) / (self._last[0] - self._start[0])
+        return (self._last[1] - start[1]) / (self._last[0] - start[0])
 
 
 class MessageClock:

@@ -17,9 +17,10 @@ Typical use::
 in this process; rospy reads ``ROS_MASTER_URI`` once, when its node starts).
 
 Time: a master and the fakes on it share one clock (the fake's ``--clock``): ``sim`` (``/use_sim_time`` set before
-any node starts, the fake publishes ``/clock``) or ``wall`` (as a real robot). The default is the fake's default,
-or ``BAXTER_PNP_CLOCK`` (e.g. ``BAXTER_PNP_CLOCK=wall pytest tests/test_fake_baxter.py`` runs those tests against a
-wall-clock fake). On a wall-clock master a fake asked to run unpaced (``--real-time-factor 0``) runs paced at 1.0:
+any node starts, the fake publishes ``/clock``) or ``wall`` (as a real robot). The harness's default is ``sim``
+(tests and trial batches run the fake unpaced; a fake started by hand defaults to ``wall``), or
+``BAXTER_PNP_CLOCK`` (e.g. ``BAXTER_PNP_CLOCK=wall pytest tests/test_fake_baxter.py`` runs those tests against
+a wall-clock fake). On a wall-clock master a fake asked to run unpaced (``--real-time-factor 0``) runs paced at 1.0:
 only simulated time can run faster than the wall.
 """
 import contextlib
@@ -35,7 +36,7 @@ import time
 import rosgraph
 
 from baxter_pnp.runtime import PACKAGE_ROOT, venv_python
-from baxter_pnp.sim.clock import CLOCKS, DEFAULT_CLOCK
+from baxter_pnp.sim.clock import CLOCKS, HARNESS_CLOCK
 
 SCRIPTS_DIR = os.path.join(PACKAGE_ROOT, 'scripts')
 FAKE_BAXTER_SCRIPT = os.path.join(SCRIPTS_DIR, 'fake_baxter.py')
@@ -45,8 +46,8 @@ CLOCK_ENV = 'BAXTER_PNP_CLOCK'       # sim | wall: the harness's clock when none
 
 
 def harness_clock():
-    """The clock of masters and fakes started without one: ``$BAXTER_PNP_CLOCK``, else the fake's default."""
-    clock = os.environ.get(CLOCK_ENV) or DEFAULT_CLOCK
+    """The clock of masters and fakes started without one: ``$BAXTER_PNP_CLOCK``, else ``sim`` (unpaced runs)."""
+    clock = os.environ.get(CLOCK_ENV) or HARNESS_CLOCK
     if clock not in CLOCKS:
         raise ValueError(f'{CLOCK_ENV}={clock!r}: expected one of {", ".join(CLOCKS)}')
     return clock

@@ -12,9 +12,9 @@ truth of tests (``/fake_baxter/...``) and the loop.
 Each loop iteration advances the physics by one fixed step, publishes whatever is due in simulated time
 (``clock.RateSchedule``), then sleeps just enough to run at ``--real-time-factor`` (``clock.RealTimePacer``). Rates
 therefore hold in simulated time whatever the CPU speed; a slow CPU only lowers the achieved real-time factor.
-``--clock`` (``clock.MessageClock``) says what its stamps hold: ``sim`` (the default) publishes ``/clock`` every step
-and sets ``/use_sim_time``, so every node runs on simulated time; ``wall`` stamps the wall clock, paced at 1.0,
-with no ``/clock`` and no ``/use_sim_time``, as a real robot.
+``--clock`` (``clock.MessageClock``) says what its stamps hold: ``wall`` (the default at a real-time factor of 1)
+stamps the wall clock, with no ``/clock`` and no ``/use_sim_time``, as a real robot; ``sim`` (the default at any
+other factor) publishes ``/clock`` every step and sets ``/use_sim_time``, so every node runs on simulated time.
 
 Names: the SDK's topic, service and frame names and constants come from ``baxter_pnp.robot.sdk``, which
 the robot clients use too; nothing else of ``baxter_pnp.robot`` is imported here.
@@ -37,7 +37,6 @@ import dataclasses
 import math
 import os
 import sys
-import time
 import xml.etree.ElementTree as ElementTree
 
 import numpy as np
@@ -57,7 +56,7 @@ from baxter_pnp.sim import fastmath
 from baxter_pnp.sim.assembly import IDENTITY_PARAMS, RobotEnableState
 from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, parse_camera_option
 from baxter_pnp.sim.cameras_node import CamerasNode
-from baxter_pnp.sim.clock import CLOCKS, DEFAULT_CLOCK, MessageClock, RateSchedule, RealTimePacer
+from baxter_pnp.sim.clock import CLOCKS, MessageClock, RateSchedule, RealTimePacer, default_clock
 from baxter_pnp.sim.faults import DelayLine
 from baxter_pnp.sim.gripper_node import GripperNode
 from baxter_pnp.sim.head_node import HeadNode
@@ -88,7 +87,7 @@ class FakeBaxterNode:
     """Publishes, subscribes and serves Baxter's interfaces around a ``SimWorld``; ``run()`` is the loop."""
 
     def __init__(self, world, urdf_text, real_time_factor=1.0, image_encoding='bgra8', enable=False,
-                 open_cameras=(), seed=0, clock=DEFAULT_CLOCK):
+                 open_cameras=(), seed=0, clock=None):
         self.world = world
         self.faults = world.scene.faults
         # Independent streams, so that e.g. the IK calls an application makes do not change the image noise.
@@ -103,7 +102,7 @@ class FakeBaxterNode:
         positions, _, _ = world.joint_state()
         self._joint_positions = dict(zip(world.joint_names(), (float(q) for q in positions)))   # rad, last published
         self.pacer = RealTimePacer(real_time_factor)
-        self.clock = MessageClock(clock, self.pacer)
+        self.clock = MessageClock(clock or default_clock(real_time_factor), self.pacer)
 
         for name, value in IDENTITY_PARAMS.items():
             rospy.set_param(name, value)
@@ -166,14 +165,17 @@ class FakeBaxterNode:
             if ready_pub is None:       # after the first /clock: a client started once ready has a clock
                 ready_pub = self._announce_ready()
             self._publish_respawns()
+            if rospy.is_shutdown():     # a shutdown that began in this step is not lag
+                break
             self.pacer.pace(self.world.time)
         streaming = ''
         if self.cameras.first_opened is not None:
-            wall_opened, sim_opened = self.cameras.first_opened
-            streaming = (f', {(self.world.time - sim_opened) / (time.monotonic() - wall_opened):.3f} since the first '
-                         f'camera opened {self.world.time - sim_opened:.1f} simulated s ago')
-        rospy.loginfo('fake_baxter: stopped after %.1f s of simulated time (real-time factor %.3f%s)',
-                      self.world.time, self.pacer.measured_factor(), streaming)
+            streaming = (f', {self.pacer.measured_factor(since=self.cameras.first_opened):.3f} since the first '
+                         f'camera opened {self.world.time - self.cameras.first_opened[1]:.1f} simulated s ago')
+        behind = '' if not self.pacer.resets else (f'; fell behind {self.pacer.resets} times by more than '
+                                                   f'{self.pacer.max_lag:g} s, {self.pacer.lost:.2f} simulated s lost')
+        rospy.loginfo('fake_baxter: stopped after %.1f s of simulated time (real-time factor %.3f%s%s)',
+                      self.world.time, self.pacer.measured_factor(), streaming, behind)
 
     def _announce_ready(self):
         """Latch /robot/sim/started (as the official simulator does) and log the one 'ready' line."""
@@ -342,16 +344,17 @@ def parse_args(argv):
                                                       '(repeatable, at most two)')
     parser.add_argument('--seed', type=int, default=0,
                         help='seed of the image noise and of the random faults; default %(default)s')
-    parser.add_argument('--clock', choices=CLOCKS, default=DEFAULT_CLOCK,
-                        help='sim: publish /clock and set /use_sim_time (every node on simulated time; any '
-                             '--real-time-factor); wall: stamp the wall clock, paced at 1.0, no /clock, as a real '
-                             'robot; default %(default)s')
+    parser.add_argument('--clock', choices=CLOCKS, default=None,
+                        help='wall: stamp the wall clock, paced at 1.0, no /clock, as a real robot; sim: publish '
+                             '/clock and set /use_sim_time (every node on simulated time; any --real-time-factor); '
+                             'default: wall at a real-time factor of 1, else sim')
     parser.add_argument('--renderer', choices=RENDERERS, default='auto',
                         help='what draws the cameras: OpenGL through EGL (~5 ms a 640x400 frame) or PyBullet\'s '
                              'TinyRenderer (~75 ms); auto: EGL where it works, else TinyRenderer; default %(default)s')
     args = parser.parse_args(argv)
     if args.real_time_factor < 0 or not math.isfinite(args.real_time_factor):
         parser.error('--real-time-factor must be >= 0')
+    args.clock = args.clock or default_clock(args.real_time_factor)
     if args.clock == 'wall' and args.real_time_factor != 1:
         parser.error(f'--clock wall runs at real time: --real-time-factor must be 1, got {args.real_time_factor:g} '
                      f'(use --clock sim to run slower or faster)')

@@ -100,10 +100,10 @@ def test_bad_scene_is_a_clear_error_with_exit_code_2(tmp_path):
 
 # README "Fake Baxter" gives these. Measured on the 2-core machine (2026-11), in simulated seconds per CPU second of
 # the fake (all its threads: the real-time factor it reaches with the CPU it gets; other processes' load takes
-# cores away, which this does not count): 3.6-3.7 without a camera, 1.8-1.9 with one (angled start pose, OpenGL
-# through EGL, frames drawn in their own thread; session 8); per wall second 3.6 and 2.3-2.5. PyBullet's
-# TinyRenderer gave 0.41-0.46 with a camera. Asserted per CPU second: above a third without a camera, above two
-# thirds with one (a frame rendered twice, or by TinyRenderer), and a camera costs CPU (a frame skipped would not).
+# cores away, which this does not count): 2.6-3.7 without a camera, 1.5-2.4 with one (angled start pose, OpenGL
+# through EGL, the noise bank); per wall second 1.9-3.6 and 1.3-2.4. PyBullet's TinyRenderer gave 0.41-0.46 with a
+# camera. Asserted per CPU second: above a third without a camera, above two thirds with one (a frame rendered
+# twice, or by TinyRenderer), and a camera costs CPU (a frame skipped would not).
 SIM_PER_CPU_SECOND_NO_CAMERA = 3.0
 SIM_PER_CPU_SECOND_CAMERA = 1.1
 

@@ -9,13 +9,14 @@ devices") closes every camera. Each camera renders from its own URDF link (``lef
 blackout, brightness) act here. The camera bank (modes, at most two open) is ``sim.cameras``'s; its services run
 in their own threads, publishers under a lock. Frames: the main loop reads the scene at each frame's instant
 (``capture_due``, ``SimWorld.camera_frame``); a thread of their own draws and forms them (OpenGL, noise, the
-message: ~10 ms a 640x400 frame) while the physics steps on, on the other core; the main loop publishes each
-once drawn and its latency fault has passed. At most ``FRAMES_IN_FLIGHT`` wait to be drawn: a fake running
-faster than its camera thread waits for it, and no frame is dropped.
+message: ~10 ms a 640x400 frame) while the physics steps on, on the other core. Each frame is published at the
+first step ``FRAME_PIPELINE_DELAY`` simulated seconds after its capture (or its latency fault, if longer), the
+loop waiting for its drawing if need be: every frame has the same delay in simulated time whatever the CPU (an
+unpaced fake waits for its camera thread; no frame is dropped, none comes late).
 """
 import collections
+import concurrent.futures
 import errno
-import queue
 import threading
 import time
 
@@ -31,35 +32,7 @@ from baxter_pnp.sim.cameras import RESOLUTION_HALF_CONTROL, CameraBank, camera_s
 from baxter_pnp.sim.faults import DelayLine
 
 CAMERAS_RESET_SERVICE = '/cameras/reset'
-FRAMES_IN_FLIGHT = 2           # frames captured and waiting to be drawn before the main loop waits
-
-
-class FrameThread:
-    """Runs frame jobs (callables) in one thread of its own, in the order given. ``submit`` blocks while
-    ``FRAMES_IN_FLIGHT`` jobs wait; ``finished()`` gives the results so far, in order, as (key, result). A job
-    that raises is logged and gives no result."""
-
-    def __init__(self, max_waiting=FRAMES_IN_FLIGHT):
-        self._jobs = queue.Queue(maxsize=max_waiting)
-        self._done = collections.deque()
-        threading.Thread(target=self._run, name='camera frames', daemon=True).start()
-
-    def submit(self, key, job):
-        self._jobs.put((key, job))
-
-    def finished(self):
-        results = []
-        while self._done:
-            results.append(self._done.popleft())
-        return results
-
-    def _run(self):
-        while True:
-            key, job = self._jobs.get()
-            try:
-                self._done.append((key, job()))
-            except Exception as error:       # a frame lost, the stream goes on (logged)
-                rospy.logerr(f'a camera frame failed: {error!r}')
+FRAME_PIPELINE_DELAY = 0.01     # simulated s from a frame's capture to its publication at the earliest (drawing)
 
 
 class CamerasNode:
@@ -73,7 +46,8 @@ class CamerasNode:
         self._noise_rng, self._frame_fault_rng = noise_rng, frame_fault_rng
         self.bank = CameraBank()
         self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) drawn, not published
-        self._frames = FrameThread()                              # frames captured, being drawn
+        self._drawing = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='camera_frames')
+        self._in_flight = collections.deque()     # (capture time, name, CameraInfo, future Image), capture order
         self._publishers = {}             # {open camera: (image, camera_info) publishers}
         self._publishers_lock = threading.Lock()
         self.first_opened = None          # (wall s of time.monotonic, simulated s) of the first camera opened
@@ -141,8 +115,12 @@ class CamerasNode:
         """Capture the frames due at ``now`` (s) and publish those drawn whose latency has passed (if still open)."""
         for name, cam in self.bank.due(now):
             self._capture(name, cam, now)
-        for (captured, name, info), image in self._frames.finished():
-            self._delayed_frames.put(captured, (name, image, info))
+        while self._in_flight and self._in_flight[0][0] + FRAME_PIPELINE_DELAY <= now + 1e-9:
+            captured, name, info, image = self._in_flight.popleft()
+            try:
+                self._delayed_frames.put(captured, (name, image.result(), info))
+            except Exception as error:       # a frame lost (logged), the stream goes on
+                rospy.logerr(f'{name}: a frame failed: {error!r}')
         for name, image, info in self._delayed_frames.due(now):
             with self._publishers_lock:
                 if name in self._publishers and self.bank.is_open(name):
@@ -159,4 +137,5 @@ class CamerasNode:
         header = Header(stamp=self._ros_time(now), frame_id='/' + name)     # as the robot: leading /
         frame = self.world.camera_frame(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
         encoding = self.image_encoding
-        self._frames.submit((now, name, cam.camera_info(header)), lambda: bgr_to_msg(frame(), encoding, header))
+        self._in_flight.append((now, name, cam.camera_info(header),
+                                self._drawing.submit(lambda: bgr_to_msg(frame(), encoding, header))))

@@ -7,15 +7,8 @@ As on the robot, a camera's image topics exist only while it is open: ``open`` a
 devices") closes every camera. Each camera renders from its own URDF link (``left_hand_camera``, ``right_hand_camera``,
 ``head_camera``: the head camera pans with the head). The camera faults (``faults.camera``: drops, latency, stall,
 blackout, brightness) act here. The camera bank (modes, at most two open) is ``sim.cameras``'s; its services run
-in their own threads, publishers under a lock. Frames: the main loop reads the scene at each frame's instant
-(``capture_due``, ``SimWorld.camera_frame``); a thread of their own draws and forms them (OpenGL, noise, the
-message: ~10 ms a 640x400 frame) while the physics steps on, on the other core. Each frame is published at the
-first step ``FRAME_PIPELINE_DELAY`` simulated seconds after its capture (or its latency fault, if longer), the
-loop waiting for its drawing if need be: every frame has the same delay in simulated time whatever the CPU (an
-unpaced fake waits for its camera thread; no frame is dropped, none comes late).
+in their own threads, the frames are captured by the main loop (``capture_due``), publishers under a lock.
 """
-import collections
-import concurrent.futures
 import errno
 import threading
 import time
@@ -32,7 +25,6 @@ from baxter_pnp.sim.cameras import RESOLUTION_HALF_CONTROL, CameraBank, camera_s
 from baxter_pnp.sim.faults import DelayLine
 
 CAMERAS_RESET_SERVICE = '/cameras/reset'
-FRAME_PIPELINE_DELAY = 0.01     # simulated s from a frame's capture to its publication at the earliest (drawing)
 
 
 class CamerasNode:
@@ -45,9 +37,7 @@ class CamerasNode:
         self.faults = world.scene.faults.camera
         self._noise_rng, self._frame_fault_rng = noise_rng, frame_fault_rng
         self.bank = CameraBank()
-        self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) drawn, not published
-        self._drawing = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix='camera_frames')
-        self._in_flight = collections.deque()     # (capture time, name, CameraInfo, future Image), capture order
+        self._delayed_frames = DelayLine(self.faults.latency)    # (name, Image, CameraInfo) captured, not published
         self._publishers = {}             # {open camera: (image, camera_info) publishers}
         self._publishers_lock = threading.Lock()
         self.first_opened = None          # (wall s of time.monotonic, simulated s) of the first camera opened
@@ -112,15 +102,9 @@ class CamerasNode:
 
     # ------------------------------------------------------------------ frames (the main loop)
     def capture_due(self, now):
-        """Capture the frames due at ``now`` (s) and publish those drawn whose latency has passed (if still open)."""
+        """Render the frames due at ``now`` (s) and publish those whose latency has passed (if still open)."""
         for name, cam in self.bank.due(now):
             self._capture(name, cam, now)
-        while self._in_flight and self._in_flight[0][0] + FRAME_PIPELINE_DELAY <= now + 1e-9:
-            captured, name, info, image = self._in_flight.popleft()
-            try:
-                self._delayed_frames.put(captured, (name, image.result(), info))
-            except Exception as error:       # a frame lost (logged), the stream goes on
-                rospy.logerr(f'{name}: a frame failed: {error!r}')
         for name, image, info in self._delayed_frames.due(now):
             with self._publishers_lock:
                 if name in self._publishers and self.bank.is_open(name):
@@ -129,13 +113,11 @@ class CamerasNode:
                     info_publisher.publish(info)
 
     def _capture(self, name, cam, now):
-        """Capture the frame due at ``now`` (s): the scene read now, drawn by the frame thread, published after
-        the camera latency fault; the frame-drop, stall, blackout and brightness faults apply here."""
+        """Render the frame due at ``now`` (s) and queue it for publication after the camera latency fault;
+        the frame-drop, stall, blackout and brightness faults apply here."""
         fault_time = self.world.fault_time(now)
         if not self.faults.publishes(fault_time, self._frame_fault_rng.random()):
             return
         header = Header(stamp=self._ros_time(now), frame_id='/' + name)     # as the robot: leading /
-        frame = self.world.camera_frame(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
-        encoding = self.image_encoding
-        self._in_flight.append((now, name, cam.camera_info(header),
-                                self._drawing.submit(lambda: bgr_to_msg(frame(), encoding, header))))
+        image = self.world.render_camera(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
+        self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header), cam.camera_info(header)))

@@ -173,15 +173,11 @@ class _EglContext:
 
 @contextlib.contextmanager
 def _current(context):
-    """``context`` current in the calling thread, holding its lock, for the block; released after it, so that
-    another thread may make it current next (EGL refuses a context current in another thread)."""
+    """``context`` current in the calling thread, holding its lock, for the block."""
     with context._lock:
         if not context._egl.eglMakeCurrent(context._display, None, None, context._context):
             raise RendererUnavailable(f'eglMakeCurrent failed ({context._egl.eglGetError():#x})')
-        try:
-            yield context
-        finally:
-            context._egl.eglMakeCurrent(context._display, None, None, None)
+        yield context
 
 
 _context, _context_error, _context_lock = None, None, threading.Lock()

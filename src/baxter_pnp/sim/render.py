@@ -113,11 +113,6 @@ class TinyRenderer:
     def __init__(self, client):
         self._client = client
 
-    def prepare(self, T_base_camera, camera):
-        """``render`` now (PyBullet draws), returned as a callable giving the image (as ``EglRenderer.prepare``)."""
-        image = self.render(T_base_camera, camera)
-        return lambda: image
-
     def render(self, T_base_camera, camera):
         """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base)."""
         view = T_OPENGL_OPTICAL @ invert(T_base_camera)
@@ -139,9 +134,7 @@ class EglRenderer:
     vertex) and the meshes given to the constructor; each part is drawn in its link frame with the link's
     pose of the moment. Shading: TinyRenderer's (``_SHADING``) with ``LIGHT``. Measured on the default
     scene: the images equal TinyRenderer's but for a few silhouette pixels of the cylinders
-    (tests/test_render.py). The scene is re-read from PyBullet at each frame (new bodies, colours, link poses):
-    ``prepare`` reads it in PyBullet's thread and returns the drawing, which any thread may run (the fake's
-    cameras draw in their own thread while the physics steps on).
+    (tests/test_render.py). The scene is re-read from PyBullet at each render (new bodies, colours).
     A box body given a texture (``textures``) is drawn with it: PyBullet's box texture coordinates (``_BOX_UV``),
     nearest texel. A shape of a kind it cannot draw (a sphere, a mesh file, a texture on a shape other than a
     box) makes TinyRenderer draw the frames from then on (logged once).
@@ -165,12 +158,10 @@ class EglRenderer:
             self._programs = {shader: self._gl.program(*sources) for shader, sources in _SHADERS.items()}
             self._uniforms = {shader: {name: self._gl.uniform(program, name) for name in _UNIFORMS}
                               for shader, program in self._programs.items()}
+            self._sync_scene()
         # Mesa compiles the shaders at the first draw (LLVM; 45 ms idle, seconds on a loaded machine): draw once
         # now, while the fake boots, not at the first camera frame, where the stall would silence every stream.
-        shapes = self._visual_shapes()
-        self._check(shapes)
-        self._draw(shapes, self._link_poses(shapes), np.eye(4),
-                   CameraModel(64, 40, [[40.0, 0.0, 32.0], [0.0, 40.0, 20.0], [0.0, 0.0, 1.0]]))
+        self._render(np.eye(4), CameraModel(64, 40, [[40.0, 0.0, 32.0], [0.0, 40.0, 20.0], [0.0, 0.0, 1.0]]))
 
     @property
     def description(self):
@@ -180,30 +171,19 @@ class EglRenderer:
     def render(self, T_base_camera, camera):
         """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base).
         Once the scene holds a shape this renderer cannot draw, TinyRenderer draws it (logged once)."""
-        return self.prepare(T_base_camera, camera)()
-
-    def prepare(self, T_base_camera, camera):
-        """Read from PyBullet now (PyBullet's thread) what the frame of ``camera`` at ``T_base_camera`` shows --
-        the visual shapes, their colours and link poses -- and return a callable drawing it: uint8 BGR (H, W, 3).
-        The callable may run in any thread, later (drawings run one at a time). A shape this renderer cannot draw
-        switches to TinyRenderer, which draws now (logged once)."""
         if self._fallback is None:
-            shapes = self._visual_shapes()
             try:
-                self._check(shapes)
+                return self._render(T_base_camera, camera)
             except RendererUnavailable as error:
                 LOG.warning('camera renderer: switching from EGL to TinyRenderer: %s', error)
                 self._fallback = TinyRenderer(self._client)
-            else:
-                poses = self._link_poses(shapes)
-                return lambda: self._draw(shapes, poses, T_base_camera, camera)
-        return self._fallback.prepare(T_base_camera, camera)
+        return self._fallback.render(T_base_camera, camera)
 
-    def _draw(self, shapes, poses, T_base_camera, camera):
-        """Draw ``shapes`` at ``poses`` (read by ``prepare``); any thread."""
+    def _render(self, T_base_camera, camera):
         gl = self._gl
         with gl.current():
-            self._sync_scene(shapes)
+            self._sync_scene()
+            poses = self._link_poses()
             clip_from_world = optical_projection(camera) @ invert(T_base_camera)
             gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, self._framebuffer(camera.width, camera.height))
             gl.glViewport(0, 0, camera.width, camera.height)
@@ -268,21 +248,9 @@ class EglRenderer:
                                tuple(rgba)))
         return shapes
 
-    def _check(self, shapes):
-        """Raise ``RendererUnavailable`` if a shape of ``shapes`` (``_visual_shapes``) is one this renderer cannot
-        draw: a kind other than a box, a cylinder or a mesh given as vertices; a texture on a shape not a box."""
-        for body, link, kind, dimensions, *_ in shapes:
-            if kind not in (p.GEOM_BOX, p.GEOM_CYLINDER) and not (kind == p.GEOM_MESH and body in self._meshes):
-                raise RendererUnavailable(f'body {body}: visual geometry type {kind} is not drawn by the EGL renderer')
-            if body in self._images:
-                if kind != p.GEOM_BOX:
-                    raise RendererUnavailable(f'body {body}: the EGL renderer draws textures on boxes only')
-                if self._images[body].ndim != 3 or self._images[body].shape[2] != 3:
-                    raise RendererUnavailable(f'body {body}: texture of shape {self._images[body].shape}, '
-                                              f'expected (H, W, 3) RGB')
-
-    def _sync_scene(self, shapes):
-        """Rebuild the vertex buffer when the set of ``shapes`` changed; refresh the colours."""
+    def _sync_scene(self):
+        """Rebuild the vertex buffer when the set of shapes changed; refresh the colours."""
+        shapes = self._visual_shapes()
         signature = [shape[:6] for shape in shapes]
         if signature != self._signature:
             self._build(shapes)
@@ -317,14 +285,20 @@ class EglRenderer:
             gl.glEnableVertexAttribArray(location)
             gl.glVertexAttribPointer(location, size, egl.GL_FLOAT, 0, 32, ctypes.c_void_p(offset))
         self._parts = parts
+        self._link_keys = {}
+        for part in parts:
+            self._link_keys.setdefault(part.body, set()).add(part.link)
 
     def _upload_texture(self, body, kind):
         """``body``'s image as an OpenGL texture (once): nearest texel, repeated, flipped as PyBullet flips a loaded
-        texture (row 0 at t = 1; measured: the other 7 orientations differ from TinyRenderer by 12 grey levels).
-        ``_check`` has seen that the shape is a box and the image RGB."""
+        texture (row 0 at t = 1; measured: the other 7 orientations differ from TinyRenderer by 12 grey levels)."""
+        if kind != p.GEOM_BOX:
+            raise RendererUnavailable(f'body {body}: the EGL renderer draws textures on boxes only')
         if body in self._textures:
             return
         gl, image = self._gl, np.ascontiguousarray(self._images[body][::-1])
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise RendererUnavailable(f'body {body}: texture of shape {image.shape}, expected (H, W, 3) RGB')
         gl.glBindTexture(egl.GL_TEXTURE_2D, self._textures.setdefault(body, gl.gen(gl.glGenTextures)))
         gl.glPixelStorei(egl.GL_UNPACK_ALIGNMENT, 1)
         gl.glTexImage2D(egl.GL_TEXTURE_2D, 0, egl.GL_RGB8, image.shape[1], image.shape[0], 0, egl.GL_RGB, egl.GL_UNSIGNED_BYTE,
@@ -350,14 +324,10 @@ class EglRenderer:
             return vertices[indices] * np.asarray(dimensions), normals[indices]
         raise RendererUnavailable(f'body {body}: visual geometry type {kind} is not drawn by the EGL renderer')
 
-    def _link_poses(self, shapes):
-        """{(body, link): T_world_link (4x4)} of every link that has a visual shape of ``shapes`` (link -1: the
-        base), read from PyBullet now."""
-        link_keys = {}
-        for body, link, *_ in shapes:
-            link_keys.setdefault(body, set()).add(link)
+    def _link_poses(self):
+        """{(body, link): T_world_link (4x4)} of every link that has a visual shape (link -1: the base)."""
         poses, client = {}, self._client
-        for body, links in link_keys.items():
+        for body, links in self._link_keys.items():
             if -1 in links:
                 position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=client)
                 local_position, local_orientation = p.getDynamicsInfo(body, -1, physicsClientId=client)[3:5]

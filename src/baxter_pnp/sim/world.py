@@ -379,18 +379,14 @@ class SimWorld(PyBulletClientOwner):
         says (``sim.appearance.form_image``: exposure, white balance, vignetting; its intensities multiplied
         by ``gain``, a lighting change, 0 = black, nothing rendered; noise drawn from ``rng``, none if None).
         """
-        return self.camera_frame(link, camera, rng, gain)()
-
-    def camera_frame(self, link, camera, rng=None, gain=1.0):
-        """``render_camera``'s image in two halves: reads PyBullet now (this thread must be PyBullet's) and returns
-        a callable making the image (any thread; one at a time per ``rng``): the fake's cameras draw and form
-        their frames in a thread of their own while the physics steps on."""
-        draw = self._prepare_render(link, camera) if gain > 0 else (
-            lambda: np.zeros((camera.height, camera.width, 3), np.uint8))
-        look, vignette = self.scene.appearance, self._vignette(camera)
+        if gain > 0:
+            image = self._render(link, camera)
+        else:
+            image = np.zeros((camera.height, camera.width, 3), np.uint8)
+        look = self.scene.appearance
         if rng is None and gain == 1.0 and not look.scales_intensity():
-            return draw
-        return lambda: appearance.form_image(draw(), look, camera, rng, gain, vignette)
+            return image
+        return appearance.form_image(image, look, camera, rng, gain, self._vignette(camera))
 
     def prepare_camera(self, camera):
         """Compute now what the first frame of ``camera`` needs (ideal camera, remap maps, vignetting, the noise bank:
@@ -422,22 +418,18 @@ class SimWorld(PyBulletClientOwner):
             self._remap_maps[key] = cv2.convertMaps(*true_camera.rendering_maps(ideal), cv2.CV_16SC2)
         return ideal, self._remap_maps[key]
 
-    def _prepare_render(self, link, camera):
-        """A callable giving the noise-free uint8 BGR image of ``camera`` at ``link`` as it is now (see
-        ``render_camera``, ``camera_frame``)."""
+    def _render(self, link, camera):
+        """Noise-free uint8 BGR image of ``camera`` at ``link`` (see ``render_camera``)."""
         error = self.scene.camera_error
         ideal, maps = self._true_camera(camera)
         T_base_camera = self.link_pose(link) @ error.T_published_true
         n = self.scene.supersampling
-        draw = self._renderer.prepare(T_base_camera, ideal if n == 1 else ideal.scaled(n * ideal.width,
-                                                                                      n * ideal.height))
-
-        def image():
-            bgr = draw()
-            if n > 1:      # n x n samples a pixel, averaged: each pixel integrates the light over its area
-                bgr = cv2.resize(bgr, (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
-            return cv2.remap(bgr, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return image
+        if n == 1:
+            bgr = self._renderer.render(T_base_camera, ideal)
+        else:          # n x n samples a pixel, averaged: each pixel integrates the light over its area
+            bgr = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height)),
+                             (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
+        return cv2.remap(bgr, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ideal_camera(self, true_camera):
         """Pinhole camera (no distortion, the true focal lengths) whose image covers every ray of ``true_camera``."""

@@ -22,7 +22,7 @@ import pytest
 from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, harness_clock
 
 REAL_TIME_ENOUGH = 0.95      # simulated s per wall s for the wall clock's rates and durations to hold (10 % checks)
-from ros_graph import init_test_node, shutdown_test_node
+from ros_graph import init_test_node, reset_latched_limb_settings, shutdown_test_node
 
 
 @pytest.fixture(scope='session')
@@ -45,6 +45,7 @@ def fake_baxter(ros_master, tmp_path_factory):
 
     def start(*args, ready_timeout=30.0):
         log_path = log_dir / f'fake_baxter_{len(processes)}.log'
+        reset_latched_limb_settings()      # the robot's defaults, whatever an earlier test of this process latched
         process = FakeBaxterProcess(ros_master, args, log_path=log_path, ready_timeout=ready_timeout)
         processes.append(process)
         return process.start()

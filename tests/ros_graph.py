@@ -42,6 +42,27 @@ def init_test_node(name='pytest'):
     return rospy.get_name()
 
 
+def reset_latched_limb_settings():
+    """Latch the robot's defaults (speed ratio 0.3, command timeout 0.2 s) on each limb-setting topic this process
+    still publishes latched. rospy keeps one publisher per topic and node, alive while any test's ``Publisher``
+    object is, and its latched message reaches every fake started later on the session master: a test's slow
+    speed ratio (0.1) once slowed a later module's left arm until MoveArms timed out. Call before a fake starts."""
+    import rospy
+    from std_msgs.msg import Float64
+    from baxter_pnp.robot import sdk
+    if not rospy.core.is_initialized():
+        return
+    manager = rospy.impl.registration.get_topic_manager()
+    for side in ('left', 'right'):
+        topics = sdk.limb_topics(side)
+        for topic, value in ((topics.speed_ratio, sdk.DEFAULT_SPEED_RATIO),
+                             (topics.command_timeout, sdk.COMMAND_TIMEOUT)):
+            if manager.has_publication(topic):
+                publisher = rospy.Publisher(topic, Float64, latch=True, queue_size=1)
+                publisher.publish(Float64(value))
+                publisher.unregister()
+
+
 def shutdown_test_node():
     """Shut this process's rospy node down (its master is going away)."""
     import rospy

@@ -118,8 +118,7 @@ def test_triangle_without_table_plane_reprojects_exactly(camera):
 
 
 @pytest.mark.parametrize('shape', sorted(SHAPES))
-def test_sqp_converges_from_a_perturbed_initial_pose(camera, shape, monkeypatch):
-    monkeypatch.setattr(pose, 'SQP_FTOL_PX2', 1e-16)
+def test_sqp_converges_from_a_perturbed_initial_pose(camera, shape):
     model = model_for(shape, SIDE)
     rng = np.random.default_rng(12)
     for trial in range(10):

@@ -23,9 +23,11 @@ Methods (``estimate_pose(method=...)``):
   vertices; the objective is the sum of squared reprojection errors in ideal (undistorted) pixels with
   an analytic gradient; equality constraints (analytic Jacobians) make the polygon the model: the n
   edge lengths and the n - 3 diagonals from vertex 0 (2n - 3 distances: rigid in the plane) and n - 3
-  coplanarity triple products; solved with scipy's SLSQP from the best IPPE solution (or from the
-  previous frame's pose), then the model is fitted rigidly to the solution (Kabsch). With a table
-  plane, a strong prior ties the face normal to the table normal (see ``TABLE_NORMAL_SIGMA_RAD``).
+  coplanarity triple products; solved by Gauss-Newton SQP (each step the KKT system of the objective's
+  Gauss-Newton model under the linearised constraints; 3-5 steps to the optimum scipy's SLSQP found, without
+  its overhead) from the best IPPE solution (or from the previous frame's pose), then the model is fitted
+  rigidly to the solution (Kabsch). With a table plane, a strong prior ties the face normal to the table
+  normal (see ``TABLE_NORMAL_SIGMA_RAD``).
 * ``'ippe'``: ``cv2.solvePnPGeneric`` with SOLVEPNP_IPPE_SQUARE (squares) or SOLVEPNP_IPPE (pentagons,
   hexagons), or ``cv2.solveP3P`` (AP3P) for triangles (IPPE needs 4 points); of its solutions the one
   with the lowest reprojection error (plus table-normal prior, when given) is kept.
@@ -50,7 +52,6 @@ from typing import NamedTuple, Optional
 
 import cv2
 import numpy as np
-from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
 METHODS = ('sqp', 'ippe', 'sqpnp')
@@ -63,9 +64,10 @@ ABSURD_RESIDUAL_EDGE_FRACTION = 0.2
 # A polygon whose area is below this fraction of its squared perimeter is degenerate (a regular
 # polygon has 0.048 (triangle) to 0.072 (hexagon); a 60-degree tilt halves it).
 MIN_AREA_PERIMETER_RATIO = 1e-3
-# SLSQP: stop when the objective (half the squared pixel error, px^2) changes by less than this (1e-7 m on exact data).
-SQP_FTOL_PX2 = 1e-10
-SQP_MAX_ITERATIONS = 100
+# SQP: stop when a step moves no vertex's image point by more than this (px), nor its depth by more than this
+# many focal lengths (relative).
+SQP_STEP_TOL_PX = 1e-5
+SQP_MAX_ITERATIONS = 30
 # With a table plane, a pose whose top face is tilted more than this from the table's is refused: a block lying on
 # the table is level with it (to the plane's own error, a few degrees), while a flat 2:1 brick fitted with a square
 # model tilts it by 19-63 deg (the real cube photos).
@@ -213,7 +215,7 @@ def _check_simple_polygon(corners):
 
 # ----------------------------------------------------------------------------------------- solvers
 def _solve_sqp(observation, model, table_normal, initial):
-    """'sqp': constraint model fitted by SLSQP, then rigid (Kabsch) fit of the model; returns (R, t)."""
+    """'sqp': constraint model fitted by Gauss-Newton SQP, then rigid (Kabsch) fit of the model; returns (R, t)."""
     if initial is not None:
         R0, t0 = _matched_initial(initial, observation, model)
     else:
@@ -225,12 +227,7 @@ def _solve_sqp(observation, model, table_normal, initial):
             raise ValueError('no valid initial pose from IPPE or SQPnP')
         R0, t0 = _best_candidate(candidates, observation, model, table_normal)
     fit = _PolygonFit(observation, model, table_normal, R0, t0)
-    result = minimize(fit.objective, fit.v0, jac=fit.gradient, method='SLSQP',
-                      constraints={'type': 'eq', 'fun': fit.constraints, 'jac': fit.constraints_jacobian},
-                      options={'ftol': SQP_FTOL_PX2, 'maxiter': SQP_MAX_ITERATIONS})
-    X = fit.positions(result.x) * model.side
-    if not np.isfinite(X).all():
-        raise ValueError(f'SLSQP diverged ({result.message})')
+    X = fit.positions(fit.solve()) * model.side
     centre = X.sum(axis=0) / len(X)      # X.mean(axis=0), without its overhead
     return _kabsch_rotation(X - centre, model.vertices), centre
 
@@ -321,28 +318,21 @@ class _FitPoint(NamedTuple):
 
 
 class _PolygonFit:
-    """The SQP problem of one observation: chart, objective and equality constraints, all analytic.
+    """The SQP problem of one observation: chart, objective and equality constraints, all analytic, and its solver.
 
     Chart of the vertex positions: ``q_i = (fx x_i / z_i, fy y_i / z_i, z_i / Z0)``, each vertex's
     ideal image point (px, relative to the principal point) and its depth relative to the initial
-    depth Z0. The reprojection objective is then exactly half the sum of squared pixel errors, whose
-    Hessian is the identity SLSQP's BFGS update starts from on the image coordinates, and the
-    identity on the relative depths is so weak that the QP steps move the depths freely to satisfy
-    the linearised constraints (a Gauss-Newton-like step): median 4 SLSQP iterations for a square with
-    0.5 px noise, against 11 to 20 with Cartesian unknowns. The constraints are written on the
-    positions in side units ``X = (x, y, z) / side``: the n edges and the n - 3 diagonals from
-    vertex 0 (2n - 3 squared distances: rigid in the plane), and the n - 3 triple products
-    ``(X_k - X_0) . ((X_1 - X_0) x (X_2 - X_0))`` (coplanarity).
+    depth Z0. The reprojection objective is then exactly half the sum of squared pixel errors: its
+    Hessian is the identity on the image coordinates and 0 on the depths, which the constraints alone
+    move. The constraints are written on the positions in side units ``X = (x, y, z) / side``: the n
+    edges and the n - 3 diagonals from vertex 0 (2n - 3 squared distances: rigid in the plane), and the
+    n - 3 triple products ``(X_k - X_0) . ((X_1 - X_0) x (X_2 - X_0))`` (coplanarity). With a table
+    normal, the prior ``0.5 w |N / 2A - n_table|^2`` on the Newell normal N is added (w:
+    ``(PIXEL_SIGMA_FLOOR_PX / TABLE_NORMAL_SIGMA_RAD)^2``).
 
-    With the table-normal prior, whose curvature in the depths is large, SLSQP works on
-    ``v = P^-1 q`` with ``P = (I + w J_n^T J_n)^(-1/2)`` (``J_n``: Jacobian of the normal mismatch at
-    the start, ``w`` the prior weight), so that BFGS again starts from about the right curvature
-    (4 iterations instead of 7). Without the prior ``v = q``. The public methods take ``v``.
-
-    Speed (the problem is tiny, so numpy's per-call overhead dominates): SLSQP asks for the
-    objective, its gradient, the constraints and their Jacobian at the same points, so what they
-    share is computed once per point (``_at``); derivatives are taken with respect to the flattened
-    positions ``X`` and carried to ``v`` by one product with the chart's derivative ``dX/dv``.
+    ``solve`` runs Gauss-Newton SQP (module docstring). What the objective, the constraints and their
+    derivatives share at a point is computed once (``_at``); derivatives are taken with respect to the
+    flattened positions ``X`` and carried to ``q`` by one product with the chart's derivative ``dX/dq``.
     """
 
     def __init__(self, observation, model, table_normal, R0, t0):
@@ -364,37 +354,20 @@ class _PolygonFit:
         Q0 = X0 / X0[:, 2:]
         Q0[:, :2] *= observation.focal_px
         Q0[:, 2] = X0[:, 2] / depth_unit
-        q0 = Q0.ravel()
+        self.q0 = Q0.ravel()
         self._memo_key, self._memo = None, None
-        self.preconditioner = None
-        if table_normal is not None:
-            point = self._at(q0)
-            # [c, i] = dN_c / dX_i = (X_{i+1} - X_{i-1}) x e_c
-            d_newell = (point.X[g.next] - point.X[g.previous]) @ _UNIT_SKEWS
-            J_normal = d_newell.reshape(3, -1) @ point.d_position / g.double_area
-            # with J_n = U S V^T (thin SVD), I + w J_n^T J_n = I + V w S^2 V^T, whose power p is
-            # I + V ((1 + w S^2)^p - 1) V^T
-            _, singular_values, vt = np.linalg.svd(J_normal, full_matrices=False)
-            curvature = 1.0 + self.prior_weight * singular_values ** 2
-            self.preconditioner = np.eye(len(q0)) + (vt.T * (curvature ** -0.5 - 1.0)) @ vt
-            q0 = q0 + vt.T @ ((curvature ** 0.5 - 1.0) * (vt @ q0))   # v0 = P^-1 q0
-            self._memo_key = None     # v now means P^-1 q
-        self.v0 = q0
 
-    def _at(self, v):
-        """The ``_FitPoint`` at ``v`` (memoised for the last ``v``)."""
-        key = v.tobytes()
+    def _at(self, q):
+        """The ``_FitPoint`` at ``q`` (memoised for the last ``q``)."""
+        key = q.tobytes()
         if key == self._memo_key:
             return self._memo
         g = self.geometry
-        q = v.copy() if self.preconditioner is None else self.preconditioner @ v
         Q = q.reshape(-1, 3)
         X = Q * self._scale
         X[:, :2] *= Q[:, 2:]
         d_position = self._d_position.copy()
         d_position.reshape(-1)[g.chart_entries] = (Q @ self._d_position_entries).ravel()
-        if self.preconditioner is not None:
-            d_position = d_position @ self.preconditioner
         image_error = q - self._observed_q
         image_error[2::3] = 0.0            # the objective does not depend on the depths
         differences = g.differences @ X
@@ -411,41 +384,63 @@ class _PolygonFit:
         self._memo = _FitPoint(q, X, d_position, differences, e1_skew, face_normal, image_error, mismatch)
         return self._memo
 
-    def positions(self, v):
+    def positions(self, q):
         """(n, 3) vertex positions in side units."""
-        return self._at(v).X
+        return self._at(q).X
 
-    def objective(self, v):
-        """Half the squared ideal-pixel error (px^2) plus the table-normal prior."""
-        point = self._at(v)
-        value = 0.5 * float(point.image_error @ point.image_error)
-        if point.mismatch is not None:
-            value += 0.5 * self.prior_weight * float(point.mismatch @ point.mismatch)
-        return value
+    def solve(self):
+        """The chart point ``q`` (3n,) of the constrained optimum, by Gauss-Newton SQP from the initial pose.
 
-    def gradient(self, v):
-        """(3n,) gradient of ``objective`` with respect to ``v``."""
-        point = self._at(v)
-        if point.mismatch is None:
-            return point.image_error
-        # d(N . m)/dX_i = (X_{i+1} - X_{i-1}) x m, as rows: (X_{i+1} - X_{i-1}) @ [m]x
-        g = self.geometry
-        d_newell = (point.X[g.next] - point.X[g.previous]) @ _skew(point.mismatch)
-        prior_gradient = (self.prior_weight / g.double_area) * d_newell.ravel() @ point.d_position
-        return point.image_error @ self.preconditioner + prior_gradient
+        Each iteration solves the equality-constrained QP of the objective's Gauss-Newton model (identity on
+        the pixel coordinates, 0 on the depths, plus ``w J_n^T J_n`` for the prior, ``J_n`` the normal
+        mismatch's Jacobian) under the linearised constraints, through its KKT system, and takes the full
+        step: quadratic convergence from a closed-form start, 2-4 iterations. Stops once a step moves no
+        image coordinate by more than ``SQP_STEP_TOL_PX`` and no depth by more than that many focal lengths;
+        ValueError if that takes more than ``SQP_MAX_ITERATIONS`` or the KKT system is singular.
+        """
+        g, size = self.geometry, 3 * self.n
+        count = size + 3 * self.n - 6
+        kkt, rhs = np.zeros((count, count)), np.empty(count)
+        image_hessian = np.ones(size)
+        image_hessian[g.depth_diagonal] = 0.0
+        tolerance = np.full(size, SQP_STEP_TOL_PX)
+        tolerance[g.depth_diagonal] = SQP_STEP_TOL_PX / max(self._scale[2] / self._scale[0], 1.0)
+        q = self.q0.copy()
+        for _ in range(SQP_MAX_ITERATIONS):
+            point = self._at(q)
+            hessian, gradient = np.diag(image_hessian), point.image_error
+            if point.mismatch is not None:
+                # rows c: dN_c / dX_i = (X_{i+1} - X_{i-1}) x e_c, carried to q
+                d_newell = (point.X[g.next] - point.X[g.previous]) @ _UNIT_SKEWS
+                J_normal = d_newell.reshape(3, -1) @ point.d_position / g.double_area
+                hessian = hessian + self.prior_weight * J_normal.T @ J_normal
+                gradient = gradient + self.prior_weight * point.mismatch @ J_normal
+            A = self.constraints_jacobian(q)
+            kkt[:size, :size], kkt[:size, size:], kkt[size:, :size] = hessian, A.T, A
+            rhs[:size], rhs[size:] = -gradient, -self.constraints(q)
+            try:
+                step = np.linalg.solve(kkt, rhs)[:size]
+            except np.linalg.LinAlgError:
+                raise ValueError('SQP: singular KKT system') from None
+            if not np.isfinite(step).all():
+                raise ValueError('SQP: non-finite step')
+            q = q + step
+            if np.all(np.abs(step) <= tolerance):
+                return q
+        raise ValueError(f'SQP did not converge in {SQP_MAX_ITERATIONS} iterations')
 
-    def constraints(self, v):
+    def constraints(self, q):
         """(3n - 6,) constraint values (side units): squared distances minus the model's, triple products."""
-        point, g = self._at(v), self.geometry
+        point, g = self._at(q), self.geometry
         pairs = point.differences[:g.distance_count]
         values = np.einsum('ij,ij->i', pairs, pairs) - g.squared_lengths
         if self.n == 3:
             return values
         return np.concatenate([values, point.differences[g.distance_count + 2:] @ point.face_normal])
 
-    def constraints_jacobian(self, v):
-        """(3n - 6, 3n) Jacobian of ``constraints`` with respect to ``v``."""
-        point, g = self._at(v), self.geometry
+    def constraints_jacobian(self, q):
+        """(3n - 6, 3n) Jacobian of ``constraints`` with respect to ``q``."""
+        point, g = self._at(q), self.geometry
         J = np.zeros((3 * self.n - 6, self.n, 3))
         J[:g.distance_count] = g.distance_pattern * point.differences[:g.distance_count, None, :]
         if self.n > 3:

@@ -64,23 +64,15 @@ CAMERA = camera_module.CameraModel(
 # from its stages run on the cube (white-balanced CIELAB chroma C and hue h of the top face, mask coverage;
 # "flattest vertex": the smallest triangle a vertex makes with its neighbours, as a fraction of the polygon's area,
 # which ``flat_vertex_area_fraction`` (8 %) must undercut for a bend in a side to be dropped).
-_SLIVER = ('a blue pentagon {} px off: the top-face outline keeps a sliver of the darker side face along one edge '
-           '(top-face isolation does not split it off), so a bend remains whose flattest vertex is {} of the area')
-_PALE_PART = ('a green pentagon {} px off: a dark teal-green small cube (C 15-19, h {} deg), the mask covers only the '
-              'lighter part of its top face; flattest vertex {} of the area')
 KNOWN_MISSES = {
     'c4-09': 'a blue square 4.2 px off: top-face isolation does not split off the side face along its upper left '
              '(outline = whole blob, 1619 px^2 for a ~1200 px^2 face)',
-    'c4-17': _PALE_PART.format(3.4, 173, '8.6 %'),
-    'c4-22': 'a blue pentagon 1.2 px off: specular glare on the left half of its top face; the face found is the '
-             'whole blob (the glare is no face: it is not part of the outline), whose side face on the upper left '
-             'leaves a vertex at 12.7 % of the area',
-    'c4-31': _SLIVER.format(1.1, '10.7 %'),
-    'c4-35': _PALE_PART.format(3.4, 180, '11.3 %'),
-    'c4-38': _SLIVER.format(0.8, '11.9 %'),
 }
 # Labels detected within tolerance whose pose fails a check.
 KNOWN_POSE_FAILURES = {
+    'c4-17': 'a dark teal-green small cube (C 15-19, h 173 deg) whose mask covers only the lighter part of its top '
+             'face: found (its pentagon restored to a square, 3.4 px off), but the square reads too large: depth 0.844 m for '
+             '1.016 m',
     'c4-08': 'a red square whose left corner lies on the side face (the outline keeps part of the side face on its '
              'left: 1494 px^2 for a ~1230 px^2 face): a projected corner 6.6 px from the labelled one',
 }

@@ -120,6 +120,7 @@ class VisionConfig(Parameters):
     approx_epsilon_fraction: float = 0.02
     merge_distance_fraction: float = 0.05
     cut_corner_area_fraction: float = 0.04
+    cut_corner_clear_area_fraction: float = 0.04
     flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
@@ -135,6 +136,8 @@ class VisionConfig(Parameters):
         self.require(self.saturation_epsilon > 0, 'saturation_epsilon', 'must be > 0')
         self.require(self.lowpass_b >= 0, 'lowpass_b', 'must be >= 0')
         self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
+        self.require(self.cut_corner_clear_area_fraction >= self.cut_corner_area_fraction,
+                     'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
         self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
 

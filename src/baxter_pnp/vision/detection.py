@@ -184,12 +184,20 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
             detection = _polygon_detection(image_bgr, outline, offset, colour, config)
             if detection is None or detection.shape not in shapes:
                 continue
-            if config.pipeline == 'chroma' and (
-                    looks_round(outline, detection.vertices_px - offset)
-                    or colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
+            if (config.pipeline == 'chroma'
+                    and colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
                 continue
             detections.append(detection)
     return detections
+
+
+def _off_the_border(contour, offset, image_shape):
+    """The points (M', 1, 2) of ``contour`` (region coordinates, region origin ``offset``) not on the border of the
+    image of ``image_shape``: where a blob is cut by the border, the border is not its outline."""
+    points = contour.reshape(-1, 2) + offset
+    h, w = image_shape[:2]
+    inside = (points[:, 0] > 0) & (points[:, 1] > 0) & (points[:, 0] < w - 1) & (points[:, 1] < h - 1)
+    return contour if inside.all() else contour[inside]
 
 
 def colour_fill(mask, vertices_px):
@@ -204,13 +212,19 @@ def colour_fill(mask, vertices_px):
 def _polygon_detection(image_bgr, outline, offset, colour, config):
     """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None.
 
-    ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)).
+    With the chroma pipeline a disc (``looks_round``, on the outline off the image border) is None; it is
+    judged on the polygon before the corners that ``cut_corner_clear_area_fraction`` restores are (a disc's
+    pentagon would become a square). ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``)
+    x (1 - fallbacks / (2 n)).
     """
     hull = cv2.convexHull(outline)
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
     coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
     coarse = remove_flat_vertices(coarse, config.flat_vertex_area_fraction)
+    if config.pipeline == 'chroma' and looks_round(_off_the_border(outline, offset, image_bgr.shape), coarse):
+        return None
+    coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction)
     shape = classify_shape(len(coarse))
     if shape is None:
         return None

@@ -11,6 +11,7 @@ import numpy as np
 from baxter_pnp.models import SHAPES
 
 SHAPE_OF_VERTEX_COUNT = {n: shape for shape, n in SHAPES.items()}
+SHORT_EDGE_RATIO = 0.4       # remove_cut_corners: an edge this much shorter than both neighbours is no polygon side
 ROUND_RESIDUAL_RATIO = 0.8    # looks_round: an ellipse must fit the outline this much better than the polygon
 _MAX_SIDE_FIT_POINTS = 240     # fit_polygon_sides: a longer contour is subsampled to about this many points
 
@@ -21,7 +22,7 @@ def approximate_polygon(contour, epsilon_fraction):
     return cv2.approxPolyDP(contour, epsilon, True).reshape(-1, 2).astype(float)
 
 
-def remove_cut_corners(vertices, max_area_fraction):
+def remove_cut_corners(vertices, max_area_fraction, clear_area_fraction=None):
     """Convex polygon (k, 2) with its cut corners restored, smallest first, down to a triangle.
 
     An edge is a cut corner (or a spurious vertex on a straight side) when its two neighbouring
@@ -31,12 +32,21 @@ def remove_cut_corners(vertices, max_area_fraction):
     strongest perspective of the benchmark (a 54 mm hexagon 0.13 m away, tilted 29 deg), while a cut
     corner adds a few per cent at most. Morphology rounds acute corners and a side face can clip a
     corner of the top face; Douglas-Peucker then keeps both ends of the cut.
+
+    Where a hexagon's corner cannot be at stake, the allowance is ``clear_area_fraction`` (default: the
+    same): when the restored polygon would have four vertices or fewer (a pentagon's corner adds 45 %, a
+    square's two neighbours never meet), and for an edge shorter than ``SHORT_EDGE_RATIO`` of both its
+    neighbours (a regular polygon's edges are alike, even in perspective). Blur and morphology cut a fixed
+    depth in pixels off a corner, and of a small block's top face that is a large share (a 60 deg corner of
+    an 18 px triangle: 8 %).
     """
+    clear_area_fraction = max_area_fraction if clear_area_fraction is None else clear_area_fraction
     polygon = [tuple(v) for v in np.asarray(vertices, dtype=float).reshape(-1, 2)]
     while len(polygon) > 3:
         n = len(polygon)
         area = 0.5 * abs(sum(polygon[k - 1][0] * polygon[k][1] - polygon[k][0] * polygon[k - 1][1] for k in range(n)))
-        best, best_added = None, max_area_fraction * area
+        allowance = (clear_area_fraction if n <= 5 else max_area_fraction) * area
+        best, best_share = None, 1.0
         for k in range(n):
             (px, py), (ax, ay), (bx, by), (qx, qy) = (polygon[k - 1], polygon[k], polygon[(k + 1) % n],
                                                       polygon[(k + 2) % n])
@@ -50,8 +60,10 @@ def remove_cut_corners(vertices, max_area_fraction):
                 continue                                          # diverging beyond the edge
             apex = (ax + t * d_in[0], ay + t * d_in[1])
             added = 0.5 * abs((apex[0] - ax) * gap[1] - (apex[1] - ay) * gap[0])
-            if added < best_added:
-                best, best_added = (k, apex), added
+            short = math.hypot(*gap) < SHORT_EDGE_RATIO * min(math.hypot(*d_in), math.hypot(*d_out))
+            share = added / (clear_area_fraction * area if short else allowance)   # < 1: a cut corner
+            if share < best_share:
+                best, best_share = (k, apex), share
         if best is None:
             break
         k, apex = best
@@ -177,8 +189,7 @@ def looks_round(contour, vertices):
     (cu, cv), (width, height), angle = cv2.fitEllipse(points)
     if min(width, height) <= 0:
         return False
-    polygon = np.asarray(vertices, np.float32).reshape(-1, 1, 2)
-    polygon_residual = np.mean([abs(cv2.pointPolygonTest(polygon, (float(u), float(v)), True)) for u, v in points])
+    polygon_residual = float(np.mean(_distance_to_boundary(points.astype(float), np.asarray(vertices, float))))
     # distance to the ellipse, to first order: radial offset in the unit-circle frame x the local semi-axis
     c, s = math.cos(math.radians(angle)), math.sin(math.radians(angle))
     du, dv = points[:, 0] - cu, points[:, 1] - cv
@@ -187,3 +198,12 @@ def looks_round(contour, vertices):
     local_axis = np.hypot(x * width / 2.0, y * height / 2.0) / np.maximum(radius, 1e-9)
     ellipse_residual = float(np.mean(np.abs(radius - 1.0) * local_axis))
     return ellipse_residual < ROUND_RESIDUAL_RATIO * polygon_residual
+
+
+def _distance_to_boundary(points, vertices):
+    """(M,) distance (px) of each of ``points`` (M, 2) to the closed polygon ``vertices`` (k, 2)'s nearest edge."""
+    start = vertices[None, :, :]
+    edge = np.roll(vertices, -1, axis=0)[None, :, :] - start
+    offset = points[:, None, :] - start
+    t = np.clip(np.sum(offset * edge, axis=2) / np.maximum(np.sum(edge * edge, axis=2), 1e-12), 0.0, 1.0)
+    return np.sqrt(np.min(np.sum((offset - t[..., None] * edge) ** 2, axis=2), axis=1))

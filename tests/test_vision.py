@@ -150,6 +150,26 @@ def test_cut_corners_are_restored_and_true_corners_kept():
     np.testing.assert_array_equal(vision.remove_cut_corners(triangle, 0.5), triangle)    # never below 3 vertices
 
 
+def test_a_small_triangles_blunted_corners_are_restored_where_no_hexagon_is_at_stake():
+    """An 18 px triangle whose three corners blur cut 3.5 px deep (4.3 % of its area each, over the 4 % allowance): its
+    short edges are restored with the clear allowance (20 %); a regular pentagon (45 % a corner) and a squashed
+    hexagon (17 %, every edge alike) keep every corner; without a clear allowance nothing changes."""
+    corners = np.array([[0, 0], [18, 0], [9, 18 * np.sqrt(3) / 2]])
+    blunted = []
+    for k in range(3):
+        a, b, c = corners[k], corners[(k + 1) % 3], corners[(k + 2) % 3]
+        blunted += [a + (b - a) * 3.5 / 18, b - (b - a) * 3.5 / 18]
+    blunted = np.array(blunted)
+    restored = vision.remove_cut_corners(blunted, 0.04, 0.2)
+    assert len(restored) == 3
+    assert max(min(np.linalg.norm(corners - v, axis=1)) for v in restored) < 1e-9
+    assert len(vision.remove_cut_corners(blunted, 0.04)) == 6
+    for n in (5, 6):
+        angles = np.arange(n) * 2 * np.pi / n
+        polygon = 10 * np.column_stack([np.cos(angles), 0.6 * np.sin(angles)])
+        np.testing.assert_array_equal(vision.remove_cut_corners(polygon, 0.04, 0.2), polygon)
+
+
 def test_a_bend_in_a_side_is_dropped_and_true_corners_kept():
     """A side bent by 15 deg halfway (the outline following a sliver of side face): 3.3 % of the area, dropped at
     8 %; the corners of a squashed hexagon (a tilted view, 17 % each) and of a pentagon stay."""

@@ -71,8 +71,8 @@ KNOWN_MISSES = {
 # Labels detected within tolerance whose pose fails a check.
 KNOWN_POSE_FAILURES = {
     'c4-17': 'a dark teal-green small cube (C 15-19, h 173 deg) whose mask covers only the lighter part of its top '
-             'face: found (its pentagon restored to a square, 3.4 px off), but the square reads too large: depth 0.844 m for '
-             '1.016 m',
+             'face: found (its pentagon restored to a square, 3.4 px off), but the square reads too large: depth '
+             '0.844 m for 1.016 m',
     'c4-08': 'a red square whose left corner lies on the side face (the outline keeps part of the side face on its '
              'left: 1494 px^2 for a ~1230 px^2 face): a projected corner 6.6 px from the labelled one',
 }

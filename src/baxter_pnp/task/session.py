@@ -97,7 +97,7 @@ class RobotSession:
     def connect(self):
         c = self.config
         rospy.loginfo('%s: connecting to the robot (%s arm)' % (self.log_name, c.side))
-        self.enabler = robot.RobotEnable()
+        self.enabler = robot.RobotEnable(timeout=c.robot_wait_timeout)   # a loaded machine can take over 2 s
         self.enabler.enable()
         self.kinematics = ArmKinematics(c.side)
         rospy.loginfo('%s: table top %.4f m under the base origin, tilted %.2f deg (%s)'

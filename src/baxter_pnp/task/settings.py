@@ -38,7 +38,7 @@ class SessionConfig(Parameters):
     timeout: float = 90.0                   # one task run (s of robot time)
     stream_max_age: float = 2.0             # a robot topic silent for longer is lost
     frame_timeout: float = 5.0              # a look waits this long for a camera frame
-    robot_wait_timeout: float = 30.0        # after lost streams, wait this long for the robot to return
+    robot_wait_timeout: float = 30.0        # wait this long for the robot's first state, and after lost streams
     max_recoveries: int = 2                 # times a run resumes after the robot came back
     cycles: int = 1                         # tasks run one after the other in one process
     next_block_timeout: float = 30.0        # between cycles: wait this long (s of robot time) for the next block

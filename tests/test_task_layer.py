@@ -126,3 +126,24 @@ def test_a_camera_calibration_is_the_image_model_or_its_centred_window(tmp_path)
         SessionConfig.from_dict({'camera_calibration': str(small), 'resolution': [640, 400]})
     with pytest.raises(ParameterError, match='camera_calibration.*not a readable'):
         SessionConfig.from_dict({'camera_calibration': str(tmp_path / 'missing.yaml')})
+
+
+def test_stall_watch_flags_a_feature_error_that_does_not_fall_and_starts_afresh_per_goal():
+    """The velocity laws' stall detection (task.picker.StallWatch): an error falling 10 % a second is never a stall;
+    one crawling 1.5 % in 3 s is, as soon as 3 s of it are seen; a new goal phase or a reset starts afresh; a
+    progress of 0 disables it."""
+    from baxter_pnp.task.picker import StallWatch
+    watch = StallWatch(3.0, 0.1)
+    assert not any(watch.stalled(0.05 * k, 100.0 * 0.9 ** (0.05 * k), 'view') for k in range(200))
+    watch = StallWatch(3.0, 0.1)
+    flags = [watch.stalled(0.05 * k, 50.0 - 0.0125 * k, 'view') for k in range(100)]
+    assert flags.index(True) == 60 and watch.count > 0
+    assert not watch.stalled(5.1, 30.0, 'hover')                    # a new phase: no history yet
+    assert not any(watch.stalled(5.1 + 0.05 * k, 30.0, 'hover') for k in range(1, 60))
+    assert watch.stalled(5.1 + 3.0, 30.0, 'hover')
+    watch.reset()
+    assert not watch.stalled(9.0, 30.0, 'hover')
+    disabled = StallWatch(3.0, 0.0)
+    assert not any(disabled.stalled(0.05 * k, 50.0, 'view') for k in range(200))
+    gapped = StallWatch(3.0, 0.1)
+    assert not any(gapped.stalled(t, 50.0, 'view') for t in (0.0, 0.05, 2.0, 3.1, 4.2))   # > 1 s gaps: afresh

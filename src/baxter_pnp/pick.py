@@ -61,6 +61,8 @@ class PickConfig(Parameters):
     view_depth: float = 0.30                # IBVS/hybrid first goal: the block centre this far from the camera (m) ...
     view_row_fraction: float = 0.75         # ... at this fraction of the image height (below the fingers' image)
     view_tolerance_px: float = 8.0          # ... reached when the RMS feature error is below this (px)
+    stall_time: float = 3.0                 # IBVS/hybrid: a feature error not down by stall_progress within this
+    stall_progress: float = 0.1             # robot time (s) is a stall, followed by one PBVS step (0: never)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
     max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
 
@@ -71,10 +73,11 @@ class PickConfig(Parameters):
         self.require_positive('side_length', 'block_height', 'hover_height', 'position_tolerance', 'yaw_tolerance',
                               'max_step_translation', 'max_step_rotation', 'lift_height', 'backoff_height',
                               'max_linear_speed', 'max_angular_speed', 'feature_tolerance_px', 'view_depth',
-                              'view_tolerance_px', 'max_residual_px', 'max_height_error', 'max_steps',
+                              'view_tolerance_px', 'max_residual_px', 'max_height_error', 'max_steps', 'stall_time',
                               'max_grasp_attempts')
         require(0.0 < self.step_fraction <= 1.0, 'step_fraction', 'must be in (0, 1]')
         require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
+        require(0.0 <= self.stall_progress < 1.0, 'stall_progress', 'must be in [0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),

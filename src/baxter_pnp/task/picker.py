@@ -198,7 +198,11 @@ class Picker:
                           % (self.result.final_error_mm_est, c.max_steps))
 
     def approach_velocity(self):
-        """IBVS or 2.5D at the camera rate: camera twist -> joint velocities (arm Jacobian from the URDF)."""
+        """IBVS or 2.5D at the camera rate: camera twist -> joint velocities (arm Jacobian from the URDF).
+
+        A stall (the feature error not down by ``stall_progress`` within ``stall_time`` s of robot time: the arm
+        crawling along a joint limit or a finger's edge) is followed by a position move (``move_after_stall``),
+        then the velocity law resumes."""
         c, session = self.config, self.session
         T_gripper_camera, kinematics, limb = session.hand_eye.T_gripper_camera, session.kinematics, session.limb
         gain = pick.make_gain(c)
@@ -207,6 +211,7 @@ class Picker:
         look = self.look_for_block()
         approach = self.approach = self.plan_approach(look)
         at_view = False         # first goal: the view pose (block low in the image); then the hover pose
+        stall = StallWatch(c.stall_time, c.stall_progress)
         for iteration in range(10 * c.max_steps + 1):
             camera = look.frame.camera
             T_hover = pick.hover_pose(look.T_base_block, c, approach.T_reference)
@@ -225,6 +230,9 @@ class Picker:
             if at_view and error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
                 limb.exit_control_mode()
                 return look.T_base_block
+            if stall.stalled(rospy.get_time(), error * camera.fx, at_view):
+                look = self.move_after_stall(look, T_goal, at_view, approach, stall)
+                continue
             twist = pick.view_kept_twist(pick.bounded_twist(twist, c.max_linear_speed, c.max_angular_speed),
                                          look.T_base_camera, look.T_base_block, c, camera,
                                          self.eye.hand_clearance(camera))
@@ -242,6 +250,24 @@ class Picker:
         limb.exit_control_mode()
         raise TaskFailure('not_converged', 'feature error still %.1f px after %d iterations'
                           % (error * camera.fx, 10 * c.max_steps))
+
+    def move_after_stall(self, look, T_goal, at_view, approach, stall):
+        """After a stall of the velocity law: straight to the view pose ``T_goal`` (a position move, as PBVS's view
+        pose), or, once past it, one PBVS step toward the hover pose ``T_goal`` (``pick.pbvs_target``, the block
+        kept in view); returns the next look."""
+        c = self.config
+        self.session.limb.exit_control_mode()
+        camera = look.frame.camera
+        if at_view:
+            T_goal, _ = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, camera,
+                                         self.session.hand_eye.T_gripper_camera, self.eye.hand_clearance(camera),
+                                         approach.view_depth)
+        rospy.logwarn('pick [%s]: the feature error has not fallen by %.0f %% in %.1f s (stall %d): %s'
+                      % (c.mode, 100 * c.stall_progress, c.stall_time, stall.count,
+                         'one PBVS step' if at_view else 'to the view pose by a position move'))
+        self.motion.move_to_pose(T_goal, 'after a stall: %s' % ('PBVS step' if at_view else 'view pose'))
+        stall.reset()
+        return self.look_for_block(after_stamp=rospy.get_time())
 
     def plan_approach(self, look):
         """``pick.plan_approach`` from this look, reachability by the URDF's IK from the current angles."""
@@ -326,3 +352,33 @@ class Picker:
             raise TaskFailure('gripper', 'the gripper did not open to release %s' % what)
         self.T_gripper_block = None
         self.motion.move_up(c.lift_height, 'retreat')
+
+
+class StallWatch:
+    """Stall detection of a velocity law: the feature error (px) must fall by ``progress`` (a fraction) within every
+    ``window`` s; ``progress`` 0 disables it. A gap of over a third of ``window`` between two errors (a move that
+    was not the law's: a re-acquisition) starts afresh. ``count``: stalls so far. Pure (times passed in)."""
+
+    def __init__(self, window, progress):
+        self.window, self.progress = window, progress
+        self.count = 0
+        self.reset()
+
+    def reset(self):
+        """Forget the errors seen (after a move that was not the velocity law's)."""
+        self._history = []
+
+    def stalled(self, now, error_px, phase=None):
+        """Record ``error_px`` at time ``now`` (s) of the goal ``phase`` (a new phase starts afresh); True on a stall."""
+        if self._history and (self._history[-1][2] != phase or now - self._history[-1][0] > self.window / 3):
+            self.reset()
+        self._history.append((now, error_px, phase))
+        if self.progress <= 0:
+            return False
+        while len(self._history) > 1 and self._history[1][0] <= now - self.window:
+            self._history.pop(0)
+        then, error_then, _ = self._history[0]
+        if now - then < self.window or error_px < (1.0 - self.progress) * error_then:
+            return False
+        self.count += 1
+        return True

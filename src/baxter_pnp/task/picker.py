@@ -252,20 +252,22 @@ class Picker:
                           % (error * camera.fx, 10 * c.max_steps))
 
     def move_after_stall(self, look, T_goal, at_view, approach, stall):
-        """After a stall of the velocity law: straight to the view pose ``T_goal`` (a position move, as PBVS's view
-        pose), or, once past it, one PBVS step toward the hover pose ``T_goal`` (``pick.pbvs_target``, the block
-        kept in view); returns the next look."""
+        """After a stall of the velocity law: a position move straight to the view pose ``T_goal`` (before it is
+        reached), else one PBVS step toward ``T_goal`` (``pick.pbvs_target``, the block kept in view), the first
+        with an IK solution from the current angles (none: the law goes on); returns the next look."""
         c = self.config
         self.session.limb.exit_control_mode()
         camera = look.frame.camera
-        if at_view:
-            T_goal, _ = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, camera,
-                                         self.session.hand_eye.T_gripper_camera, self.eye.hand_clearance(camera),
-                                         approach.view_depth)
+        T_step, _ = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, camera,
+                                     self.session.hand_eye.T_gripper_camera, self.eye.hand_clearance(camera),
+                                     approach.view_depth)
+        moves = ([] if at_view else [('the view pose', T_goal)]) + [('one PBVS step', T_step)]
+        reachable = [(what, T) for what, T in moves if self.reachable(T)]
         rospy.logwarn('pick [%s]: the feature error has not fallen by %.0f %% in %.1f s (stall %d): %s'
                       % (c.mode, 100 * c.stall_progress, c.stall_time, stall.count,
-                         'one PBVS step' if at_view else 'to the view pose by a position move'))
-        self.motion.move_to_pose(T_goal, 'after a stall: %s' % ('PBVS step' if at_view else 'view pose'))
+                         reachable[0][0] if reachable else 'no reachable move, the velocity law goes on'))
+        if reachable:
+            self.motion.move_to_pose(reachable[0][1], 'after a stall: %s' % reachable[0][0])
         stall.reset()
         return self.look_for_block(after_stamp=rospy.get_time())
 

@@ -170,6 +170,19 @@ def test_a_small_triangles_blunted_corners_are_restored_where_no_hexagon_is_at_s
         np.testing.assert_array_equal(vision.remove_cut_corners(polygon, 0.04, 0.2), polygon)
 
 
+def test_a_near_pentagon_in_perspective_keeps_its_corners():
+    """A 58 mm pentagon 0.10 m away tilted 35 deg (f = 600 px): a corner restored adds less than the clear
+    allowance's 20 %, so that allowance applies to small (nearly affine) polygons only."""
+    from scipy.spatial.transform import Rotation
+    angles = np.arange(5) * 2 * np.pi / 5
+    radius = 0.058 / (2 * np.sin(np.pi / 5))
+    corners = np.column_stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(5)])
+    points = corners @ Rotation.from_euler('x', 35, degrees=True).as_matrix().T + [0.0, 0.0, 0.10]
+    pentagon = 600.0 * points[:, :2] / points[:, 2:]
+    assert len(vision.remove_cut_corners(pentagon, 0.04, 0.2)) == 4            # what a size limit prevents
+    np.testing.assert_array_equal(vision.remove_cut_corners(pentagon, 0.04, 0.2, 100.0), pentagon)
+
+
 def test_a_bend_in_a_side_is_dropped_and_true_corners_kept():
     """A side bent by 15 deg halfway (the outline following a sliver of side face): 3.3 % of the area, dropped at
     8 %; the corners of a squashed hexagon (a tilted view, 17 % each) and of a pentagon stay."""

@@ -121,6 +121,7 @@ class VisionConfig(Parameters):
     merge_distance_fraction: float = 0.05
     cut_corner_area_fraction: float = 0.04
     cut_corner_clear_area_fraction: float = 0.04
+    cut_corner_clear_max_size_px: float = 100.0
     flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
@@ -138,6 +139,7 @@ class VisionConfig(Parameters):
         self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
         self.require(self.cut_corner_clear_area_fraction >= self.cut_corner_area_fraction,
                      'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
+        self.require(self.cut_corner_clear_max_size_px >= 0, 'cut_corner_clear_max_size_px', 'must be >= 0')
         self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
 

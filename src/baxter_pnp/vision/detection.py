@@ -224,7 +224,8 @@ def _polygon_detection(image_bgr, outline, offset, colour, config):
     coarse = remove_flat_vertices(coarse, config.flat_vertex_area_fraction)
     if config.pipeline == 'chroma' and looks_round(_off_the_border(outline, offset, image_bgr.shape), coarse):
         return None
-    coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction)
+    coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction,
+                                config.cut_corner_clear_max_size_px)
     shape = classify_shape(len(coarse))
     if shape is None:
         return None

@@ -22,7 +22,7 @@ def approximate_polygon(contour, epsilon_fraction):
     return cv2.approxPolyDP(contour, epsilon, True).reshape(-1, 2).astype(float)
 
 
-def remove_cut_corners(vertices, max_area_fraction, clear_area_fraction=None):
+def remove_cut_corners(vertices, max_area_fraction, clear_area_fraction=None, clear_max_size_px=math.inf):
     """Convex polygon (k, 2) with its cut corners restored, smallest first, down to a triangle.
 
     An edge is a cut corner (or a spurious vertex on a straight side) when its two neighbouring
@@ -33,19 +33,22 @@ def remove_cut_corners(vertices, max_area_fraction, clear_area_fraction=None):
     corner adds a few per cent at most. Morphology rounds acute corners and a side face can clip a
     corner of the top face; Douglas-Peucker then keeps both ends of the cut.
 
-    Where a hexagon's corner cannot be at stake, the allowance is ``clear_area_fraction`` (default: the
-    same): when the restored polygon would have four vertices or fewer (a pentagon's corner adds 45 %, a
-    square's two neighbours never meet), and for an edge shorter than ``SHORT_EDGE_RATIO`` of both its
-    neighbours (a regular polygon's edges are alike, even in perspective). Blur and morphology cut a fixed
-    depth in pixels off a corner, and of a small block's top face that is a large share (a 60 deg corner of
-    an 18 px triangle: 8 %).
+    On a polygon small enough to be seen in a nearly affine view (the square root of its area at most
+    ``clear_max_size_px``), where no hexagon's corner can be at stake, the allowance is ``clear_area_fraction``
+    (default: the same): when the restored polygon would have four vertices or fewer (a pentagon's corner adds
+    45 % in an affine view, a square's two neighbours never meet), and for an edge shorter than
+    ``SHORT_EDGE_RATIO`` of both its neighbours (a regular polygon's edges are alike). Blur and morphology cut
+    a fixed depth in pixels off a corner, and of a small block's top face that is a large share (a 60 deg
+    corner of an 18 px triangle cut 3.5 px deep: 4.3 %). Large polygons are near and in perspective, where a
+    pentagon's corner can add less than 20 % (a 58 mm pentagon 0.10 m away, tilted 29 deg).
     """
     clear_area_fraction = max_area_fraction if clear_area_fraction is None else clear_area_fraction
     polygon = [tuple(v) for v in np.asarray(vertices, dtype=float).reshape(-1, 2)]
     while len(polygon) > 3:
         n = len(polygon)
         area = 0.5 * abs(sum(polygon[k - 1][0] * polygon[k][1] - polygon[k][0] * polygon[k - 1][1] for k in range(n)))
-        allowance = (clear_area_fraction if n <= 5 else max_area_fraction) * area
+        clear = clear_area_fraction if area <= clear_max_size_px ** 2 else max_area_fraction
+        allowance = (clear if n <= 5 else max_area_fraction) * area
         best, best_share = None, 1.0
         for k in range(n):
             (px, py), (ax, ay), (bx, by), (qx, qy) = (polygon[k - 1], polygon[k], polygon[(k + 1) % n],
@@ -61,7 +64,7 @@ def remove_cut_corners(vertices, max_area_fraction, clear_area_fraction=None):
             apex = (ax + t * d_in[0], ay + t * d_in[1])
             added = 0.5 * abs((apex[0] - ax) * gap[1] - (apex[1] - ay) * gap[0])
             short = math.hypot(*gap) < SHORT_EDGE_RATIO * min(math.hypot(*d_in), math.hypot(*d_out))
-            share = added / (clear_area_fraction * area if short else allowance)   # < 1: a cut corner
+            share = added / (clear * area if short else allowance)   # < 1: a cut corner
             if share < best_share:
                 best, best_share = (k, apex), share
         if best is None:

@@ -157,7 +157,7 @@ def test_a_small_triangles_blunted_corners_are_restored_where_no_hexagon_is_at_s
     corners = np.array([[0, 0], [18, 0], [9, 18 * np.sqrt(3) / 2]])
     blunted = []
     for k in range(3):
-        a, b, c = corners[k], corners[(k + 1) % 3], corners[(k + 2) % 3]
+        a, b = corners[k], corners[(k + 1) % 3]
         blunted += [a + (b - a) * 3.5 / 18, b - (b - a) * 3.5 / 18]
     blunted = np.array(blunted)
     restored = vision.remove_cut_corners(blunted, 0.04, 0.2)

@@ -18,6 +18,7 @@ from baxter_pnp.safety import ArmSafety, UnsafeCommand
 # Failures after which a multi-cycle run stops: the robot is gone, stopped or broken, not just this task.
 FATAL_REASONS = ('robot_stopped', 'robot_disabled', 'stream_lost', 'service_unavailable', 'robot_error', 'gripper')
 GRIPPER_TIMEOUT = 3.0     # s: a blocking open or close of the gripper waits this long
+RESTART_GRACE = 0.5       # s (wall): a disabled state waits this long for the clock jump of a restart
 
 
 class TaskFailure(RuntimeError):
@@ -143,13 +144,19 @@ class RobotSession:
 
     def check_robot(self):
         """TaskFailure if the robot was stopped (e-stop) or disabled under us: nothing more is commanded.
-        RobotRestarted instead when it is disabled because it restarted (its clock went back)."""
+        RobotRestarted instead when it is disabled because it restarted (its clock went back): a restarted robot's
+        first state can arrive before its clock, so a disabled state is judged after up to ``RESTART_GRACE`` s."""
         state = self.enabler.state()
         if state.stopped:
             raise TaskFailure('robot_stopped', 'the robot was stopped (e-stop, source %d)' % state.estop_source)
         if not state.enabled:
-            if self.clock is not None and self.clock.restarted():
-                raise RobotRestarted('the robot restarted (its clock went back) and is disabled')
+            deadline = time.monotonic() + RESTART_GRACE
+            while self.clock is not None:
+                if self.clock.restarted():
+                    raise RobotRestarted('the robot restarted (its clock went back) and is disabled')
+                if time.monotonic() >= deadline:
+                    break
+                time.sleep(0.02)
             raise TaskFailure('robot_disabled', 'the robot was disabled during the run')
 
     def open_gripper(self):

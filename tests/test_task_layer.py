@@ -129,10 +129,10 @@ def test_a_camera_calibration_is_the_image_model_or_its_centred_window(tmp_path)
 
 
 def test_stall_watch_flags_a_feature_error_that_does_not_fall_and_starts_afresh_per_goal():
-    """The velocity laws' stall detection (task.picker.StallWatch): an error falling 10 % a second is never a stall;
+    """The velocity laws' stall detection (pick.StallWatch): an error falling 10 % a second is never a stall;
     one crawling 1.5 % in 3 s is, as soon as 3 s of it are seen; a new goal phase or a reset starts afresh; a
     progress of 0 disables it."""
-    from baxter_pnp.task.picker import StallWatch
+    StallWatch = pick.StallWatch
     watch = StallWatch(3.0, 0.1)
     assert not any(watch.stalled(0.05 * k, 100.0 * 0.9 ** (0.05 * k), 'view') for k in range(200))
     watch = StallWatch(3.0, 0.1)

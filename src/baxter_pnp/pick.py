@@ -409,3 +409,33 @@ def servo_twist(mode, T_camera_block, T_camera_goal_block, vertices_xy, model, g
 
 def make_gain(config):
     return servo.AdaptiveGain(*config.gain)
+
+
+class StallWatch:
+    """Stall detection of a velocity law: the feature error (px) must fall by ``progress`` (a fraction) within every
+    ``window`` s; ``progress`` 0 disables it. A gap of over a third of ``window`` between two errors (a move that
+    was not the law's: a re-acquisition) starts afresh. ``count``: stalls so far. Pure (times passed in)."""
+
+    def __init__(self, window, progress):
+        self.window, self.progress = window, progress
+        self.count = 0
+        self.reset()
+
+    def reset(self):
+        """Forget the errors seen (after a move that was not the velocity law's)."""
+        self._history = []
+
+    def stalled(self, now, error_px, phase=None):
+        """Record ``error_px`` at time ``now`` (s) of the goal ``phase`` (a new phase starts afresh); True on a stall."""
+        if self._history and (self._history[-1][2] != phase or now - self._history[-1][0] > self.window / 3):
+            self.reset()
+        self._history.append((now, error_px, phase))
+        if self.progress <= 0:
+            return False
+        while len(self._history) > 1 and self._history[1][0] <= now - self.window:
+            self._history.pop(0)
+        then, error_then, _ = self._history[0]
+        if now - then < self.window or error_px < (1.0 - self.progress) * error_then:
+            return False
+        self.count += 1
+        return True

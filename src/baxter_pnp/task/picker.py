@@ -211,7 +211,7 @@ class Picker:
         look = self.look_for_block()
         approach = self.approach = self.plan_approach(look)
         at_view = False         # first goal: the view pose (block low in the image); then the hover pose
-        stall = StallWatch(c.stall_time, c.stall_progress)
+        stall = pick.StallWatch(c.stall_time, c.stall_progress)
         for iteration in range(10 * c.max_steps + 1):
             camera = look.frame.camera
             T_hover = pick.hover_pose(look.T_base_block, c, approach.T_reference)
@@ -355,32 +355,3 @@ class Picker:
         self.T_gripper_block = None
         self.motion.move_up(c.lift_height, 'retreat')
 
-
-class StallWatch:
-    """Stall detection of a velocity law: the feature error (px) must fall by ``progress`` (a fraction) within every
-    ``window`` s; ``progress`` 0 disables it. A gap of over a third of ``window`` between two errors (a move that
-    was not the law's: a re-acquisition) starts afresh. ``count``: stalls so far. Pure (times passed in)."""
-
-    def __init__(self, window, progress):
-        self.window, self.progress = window, progress
-        self.count = 0
-        self.reset()
-
-    def reset(self):
-        """Forget the errors seen (after a move that was not the velocity law's)."""
-        self._history = []
-
-    def stalled(self, now, error_px, phase=None):
-        """Record ``error_px`` at time ``now`` (s) of the goal ``phase`` (a new phase starts afresh); True on a stall."""
-        if self._history and (self._history[-1][2] != phase or now - self._history[-1][0] > self.window / 3):
-            self.reset()
-        self._history.append((now, error_px, phase))
-        if self.progress <= 0:
-            return False
-        while len(self._history) > 1 and self._history[1][0] <= now - self.window:
-            self._history.pop(0)
-        then, error_then, _ = self._history[0]
-        if now - then < self.window or error_px < (1.0 - self.progress) * error_then:
-            return False
-        self.count += 1
-        return True

@@ -7,8 +7,8 @@ import pytest
 import yaml
 
 from baxter_pnp.sim import appearance
-from baxter_pnp.sim.appearance import (PRESETS, AppearanceConfig, describe, expand, form_image, random_appearance,
-                                       table_texture, vignetting_gain)
+from baxter_pnp.sim.appearance import (PRESETS, AppearanceConfig, NoiseBank, describe, expand, form_image, pixel_gain,
+                                       random_appearance, table_texture)
 from baxter_pnp.sim.cameras import sensor_model, sensor_window
 from baxter_pnp.sim.scene import Scene, SceneError, load_scene
 from baxter_pnp.sim.world import SimWorld
@@ -70,8 +70,8 @@ def test_image_formation_exposure_white_balance_vignetting_and_noise():
     dim = AppearanceConfig(exposure=0.5, white_balance=(1.0, 1.0, 0.8))      # (R, G, B) gains
     b, g, r = form_image(flat, dim, CAMERA)[0, 0]
     assert (b, g, r) == (80, 100, 100)
-    vignette = vignetting_gain(CAMERA, 0.5)
-    image = form_image(flat, clean, CAMERA, vignette=vignette).astype(float)
+    vignetted = AppearanceConfig(vignetting=0.5)
+    image = form_image(flat, vignetted, CAMERA, gains=pixel_gain(CAMERA, vignetted)).astype(float)
     centre = image[int(round(CAMERA.cy)), int(round(CAMERA.cx)), 1]
     corners = image[[0, 0, -1, -1], [0, -1, 0, -1], 1]
     assert centre == 200 and corners.min() == pytest.approx(100, abs=1) and corners.max() < 200 * 0.8
@@ -80,6 +80,15 @@ def test_image_formation_exposure_white_balance_vignetting_and_noise():
     assert noisy.std(axis=(0, 1)) == pytest.approx([2.5] * 3, rel=0.05)      # sqrt(1.5^2 + 2^2) per channel
     covariance = np.cov(noisy[..., 0].ravel(), noisy[..., 1].ravel())[0, 1]
     assert covariance == pytest.approx(1.5 ** 2, rel=0.1)                  # the common part is shared
+
+
+def test_a_noise_draw_is_a_stored_frame_circularly_shifted():
+    bank = NoiseBank((40, 64, 3), 1.0, 2.0)
+    frames = bank.tiles[:, :40, :64]
+    for seed in range(20):
+        rng, twin = np.random.default_rng(seed), np.random.default_rng(seed)
+        index, dy, dx = twin.integers(bank.FRAMES), twin.integers(40), twin.integers(64)
+        np.testing.assert_array_equal(bank.draw(rng), np.roll(frames[index], (dy, dx), axis=(0, 1)))
 
 
 def test_table_texture_has_the_colour_and_contrast_asked():

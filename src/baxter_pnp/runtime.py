@@ -18,12 +18,22 @@ def venv_python():
     return os.path.join(venv, 'bin', 'python')
 
 
-def use_project_venv(script_path):
-    """Re-exec ``script_path`` under the venv interpreter unless already running in it.
+def single_threaded_blas():
+    """Keep OpenBLAS (numpy's, scipy's) to the calling thread unless the user set its thread count: this project's
+    matrices are small (12x12 at most), and a BLAS worker thread waiting for a busy core turned each 7 us
+    ``numpy.linalg.solve`` into 2.8 ms in ``pick_square.py`` beside the fake on 2 cores (docs/fake_baxter.md,
+    "Time"). Effective only before numpy is first imported."""
+    os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
-    Does nothing when the venv does not exist (e.g. a robot workstation whose system Python has
+
+def use_project_venv(script_path):
+    """Re-exec ``script_path`` under the venv interpreter unless already running in it, with BLAS single-threaded
+    (``single_threaded_blas``).
+
+    Does nothing else when the venv does not exist (e.g. a robot workstation whose system Python has
     every dependency), so the import errors that follow name the missing module.
     """
+    single_threaded_blas()
     python = venv_python()
     in_venv = os.path.realpath(sys.prefix) == os.path.realpath(os.path.dirname(os.path.dirname(python)))
     if in_venv or not os.path.exists(python) or os.environ.get('BAXTER_PNP_NO_REEXEC'):

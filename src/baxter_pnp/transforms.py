@@ -41,6 +41,16 @@ def invert(T):
     return inverse
 
 
+def relative_transforms(T_ref_a, T_ref_b):
+    """(N, 4, 4) T_a_b = inv(T_ref_a) @ T_ref_b of stacked rigid transforms (N, 4, 4) in one frame ``ref``."""
+    R_a_ref = T_ref_a[:, :3, :3].transpose(0, 2, 1)
+    T_a_b = np.zeros_like(T_ref_b)
+    T_a_b[:, :3, :3] = R_a_ref @ T_ref_b[:, :3, :3]
+    T_a_b[:, :3, 3] = np.einsum('nij,nj->ni', R_a_ref, T_ref_b[:, :3, 3] - T_ref_a[:, :3, 3])
+    T_a_b[:, 3, 3] = 1.0
+    return T_a_b
+
+
 def transform_points(T, points):
     """Apply a 4x4 transform to an (N, 3) array of points."""
     points = np.asarray(points, dtype=float)

@@ -9,6 +9,7 @@ import rospy
 from baxter_pnp.msgs import msg
 from baxter_pnp.robot import sdk
 from baxter_pnp.sim.gripper import ElectricGripperProtocol, GripperCommandError
+from baxter_pnp.sim.publishers import state_publisher
 
 RATES_HZ = {'gripper_state': 100.0, 'gripper_properties': 1.0}     # simulated Hz
 
@@ -22,7 +23,7 @@ class GripperNode:
             lambda position, force, velocity: world.command_gripper(side, position, force, velocity))
         self.topics = sdk.gripper_topics(side)
         self._pub = {
-            'gripper_state': rospy.Publisher(self.topics.state, msg.EndEffectorState, queue_size=10),
+            'gripper_state': state_publisher(self.topics.state, msg.EndEffectorState),
             'gripper_properties': rospy.Publisher(self.topics.properties, msg.EndEffectorProperties, queue_size=1,
                                                   latch=True),
         }
@@ -40,6 +41,8 @@ class GripperNode:
 
     def _publish_gripper_state(self, header):
         self.protocol.update(self.world.time, self.world.gripper_state(self.side))
+        if not self._pub['gripper_state'].get_num_connections():
+            return
         fields = self.protocol.state()
         fields['timestamp'] = header.stamp
         self._pub['gripper_state'].publish(msg.EndEffectorState(**fields))

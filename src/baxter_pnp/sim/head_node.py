@@ -8,6 +8,7 @@ from std_msgs.msg import Bool
 
 from baxter_pnp.msgs import msg
 from baxter_pnp.sim.head import HeadCommander
+from baxter_pnp.sim.publishers import state_publisher
 from baxter_pnp.sim.world import HEAD_MAX_SPEED
 
 HEAD_STATE_TOPIC = '/robot/head/head_state'
@@ -22,7 +23,7 @@ class HeadNode:
     def __init__(self, world, robot, queued):
         self.world, self.robot = world, robot
         self.head = HeadCommander(HEAD_MAX_SPEED)
-        self._pub = rospy.Publisher(HEAD_STATE_TOPIC, msg.HeadState, queue_size=10)
+        self._pub = state_publisher(HEAD_STATE_TOPIC, msg.HeadState)
         rospy.Subscriber(PAN_TOPIC, msg.HeadPanCommand, queued(self._on_pan), queue_size=10)
         rospy.Subscriber(NOD_TOPIC, Bool, queued(self._on_nod), queue_size=10)
 
@@ -53,5 +54,7 @@ class HeadNode:
             self.head.nod(self.world.time)
 
     def _publish_head_state(self, header):
+        if not self._pub.get_num_connections():
+            return
         angle, _ = self.world.head_pan()
         self._pub.publish(msg.HeadState(**self.head.fields(angle, self.world.time)))

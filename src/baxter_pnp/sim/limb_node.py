@@ -20,6 +20,7 @@ from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot import sdk
 from baxter_pnp.sim import fastmath
+from baxter_pnp.sim.publishers import state_publisher
 from baxter_pnp.sim.arm import IK_MAP_SEEDS, TORQUE_MODE, ArmCommander, ik_stages, parse_joint_command, seed_vector
 from baxter_pnp.transforms import pose_msg_to_matrix
 
@@ -50,10 +51,10 @@ class LimbNode:
         self._endpoint_link, self._range_link = frames.gripper, frames.hand_range
         namespace = f'/robot/limb/{side}'
         self._pub = {
-            'endpoint_state': rospy.Publisher(self.topics.endpoint_state, msg.EndpointState, queue_size=10),
-            'range': rospy.Publisher(sdk.range_topic(side), Range, queue_size=10),
-            'collision_avoidance_state': rospy.Publisher(f'{namespace}/collision_avoidance_state',
-                                                         msg.CollisionAvoidanceState, queue_size=10),
+            'endpoint_state': state_publisher(self.topics.endpoint_state, msg.EndpointState),
+            'range': state_publisher(sdk.range_topic(side), Range),
+            'collision_avoidance_state': state_publisher(f'{namespace}/collision_avoidance_state',
+                                                         msg.CollisionAvoidanceState),
         }
         rospy.Subscriber(self.topics.joint_command, msg.JointCommand, queued(self._on_joint_command),
                          queue_size=10, tcp_nodelay=True)
@@ -110,15 +111,19 @@ class LimbNode:
 
     # ------------------------------------------------------------------ periodic publications
     def _publish_endpoint_state(self, header):
+        if not self._pub['endpoint_state'].get_num_connections():
+            return
         header.frame_id = sdk.BASE_FRAME
         message = msg.EndpointState(header=header)
-        fastmath.matrix_to_pose_msg(self.world.link_pose(self._endpoint_link), message.pose)
         twist = self.world.link_twist(self._endpoint_link)
+        fastmath.matrix_to_pose_msg(self.world.link_pose(self._endpoint_link), message.pose)
         (message.twist.linear.x, message.twist.linear.y, message.twist.linear.z,
          message.twist.angular.x, message.twist.angular.y, message.twist.angular.z) = (float(v) for v in twist)
         self._pub['endpoint_state'].publish(message)
 
     def _publish_range(self, header):
+        if not self._pub['range'].get_num_connections():
+            return
         header.frame_id = self._range_link
         distance = self.world.range_at(self._range_link, *RANGE_LIMITS)
         self._pub['range'].publish(Range(header=header, radiation_type=Range.INFRARED, field_of_view=0.0,
@@ -127,6 +132,8 @@ class LimbNode:
 
     def _publish_collision_avoidance_state(self, header):
         """No avoidance is modelled: never near the other arm, no collision object."""
+        if not self._pub['collision_avoidance_state'].get_num_connections():
+            return
         self._pub['collision_avoidance_state'].publish(msg.CollisionAvoidanceState(header=header, other_arm=False,
                                                                                    collision_object=[]))
 

@@ -53,6 +53,7 @@ from baxter_pnp.kinematics import DEFAULT_URDF
 from baxter_pnp.msgs import msg
 from baxter_pnp.robot import sdk
 from baxter_pnp.sim import fastmath
+from baxter_pnp.sim.publishers import state_publisher
 from baxter_pnp.sim.assembly import IDENTITY_PARAMS, RobotEnableState
 from baxter_pnp.sim.cameras import MAX_OPEN_CAMERAS, parse_camera_option
 from baxter_pnp.sim.cameras_node import CamerasNode
@@ -65,7 +66,7 @@ from baxter_pnp.sim.limb_node import RANGE_LIMITS, LimbNode
 from baxter_pnp.sim.render import RENDERERS, RendererUnavailable
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML, SceneError, load_faults, load_scene
 from baxter_pnp.sim.world import SimWorld
-from baxter_pnp.transforms import invert
+from baxter_pnp.transforms import invert, relative_transforms
 
 NODE_NAME = 'fake_baxter'
 SIDES = ('left', 'right')
@@ -109,14 +110,14 @@ class FakeBaxterNode:
         rospy.set_param('/robot_description', urdf_text)
         latched = dict(queue_size=1, latch=True)
         self._pub = {
-            'robot_state': rospy.Publisher(sdk.ROBOT_STATE_TOPIC, msg.AssemblyState, queue_size=10),
-            'joint_states': rospy.Publisher(sdk.JOINT_STATES_TOPIC, JointState, queue_size=10),
-            'tf': rospy.Publisher('/tf', TFMessage, queue_size=10),
+            'robot_state': state_publisher(sdk.ROBOT_STATE_TOPIC, msg.AssemblyState),
+            'joint_states': state_publisher(sdk.JOINT_STATES_TOPIC, JointState),
+            'tf': state_publisher('/tf', TFMessage),
             'tf_static': rospy.Publisher('/tf_static', TFMessage, **latched),
-            'object_poses': rospy.Publisher('~object_poses', PoseArray, queue_size=10),
+            'object_poses': state_publisher('~object_poses', PoseArray),
             'respawns': rospy.Publisher('~respawns', UInt32, **latched),
         }
-        self._clock_publisher = rospy.Publisher('/clock', Clock, queue_size=10) if self.clock.publishes_clock else None
+        self._clock_publisher = state_publisher('/clock', Clock) if self.clock.publishes_clock else None
         self._respawns_published = None
         self._publish_respawns()
         queued = self._queued
@@ -200,9 +201,12 @@ class FakeBaxterNode:
             self._on_stop(None)
 
     def _publish_due(self, now):
+        stamp = None
         for schedule, publish in self._schedules:
             if schedule.due(now):
-                publish(self._stamp(now))
+                if stamp is None:
+                    stamp = self.ros_time(now)
+                publish(Header(stamp=stamp))
         self.cameras.capture_due(now)
 
     def ros_time(self, now):
@@ -238,15 +242,18 @@ class FakeBaxterNode:
 
     # ------------------------------------------------------------------ periodic publications
     def _publish_robot_state(self, header):
+        if not self._pub['robot_state'].get_num_connections():
+            return
         self._pub['robot_state'].publish(msg.AssemblyState(**self.robot.fields()))
 
     def _publish_joint_states(self, header):
         positions, velocities, efforts = self.world.joint_state()
-        message = JointState(header=header, name=list(self.world.joint_names()),
-                             position=[float(v) for v in positions], velocity=[float(v) for v in velocities],
-                             effort=[float(v) for v in efforts])
-        self._joint_positions = dict(zip(message.name, message.position))
-        self._pub['joint_states'].publish(message)
+        names, positions = list(self.world.joint_names()), [float(v) for v in positions]
+        self._joint_positions = dict(zip(names, positions))
+        if self._pub['joint_states'].get_num_connections():
+            self._pub['joint_states'].publish(JointState(header=header, name=names, position=positions,
+                                                         velocity=[float(v) for v in velocities],
+                                                         effort=[float(v) for v in efforts]))
 
     def _link_poses(self, links):
         """{link: T_base_link} from the world (``base`` is the identity)."""
@@ -255,8 +262,12 @@ class FakeBaxterNode:
 
     def _publish_tf(self, header):
         poses = self._link_poses({link for joint in self._moving_joints for link in joint})
-        moving = {child: (parent, invert(poses[parent]) @ poses[child]) for parent, child in self._moving_joints}
+        T_parent_child = relative_transforms(np.stack([poses[parent] for parent, _ in self._moving_joints]),
+                                             np.stack([poses[child] for _, child in self._moving_joints]))
+        moving = {child: (parent, T) for (parent, child), T in zip(self._moving_joints, T_parent_child)}
         self._tf_edges = dict(self._tf_edges, **moving)
+        if not self._pub['tf'].get_num_connections():
+            return
         self._pub['tf'].publish(TFMessage(transforms=[
             self._transform(header, parent, child, T) for child, (parent, T) in moving.items()]))
 
@@ -292,6 +303,8 @@ class FakeBaxterNode:
         return message
 
     def _publish_object_poses(self, header):
+        if not self._pub['object_poses'].get_num_connections():
+            return
         header.frame_id = sdk.BASE_FRAME
         self._pub['object_poses'].publish(PoseArray(
             header=header, poses=[fastmath.matrix_to_pose_msg(T, Pose()) for T in self.world.object_poses()]))

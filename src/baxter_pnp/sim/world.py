@@ -105,7 +105,7 @@ class SimWorld(PyBulletClientOwner):
             **{body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
                for body, obj in zip(self._blocks, scene.objects)},
             **board_meshes}, textures=self._textures)
-        self._vignettes = {}         # (camera size, K) -> vignetting gain of scene.appearance (H, W, 3)
+        self._pixel_gains = {}       # (camera size, K) -> appearance.pixel_gain of scene.appearance (H, W, 3)
         self._remap_maps = {}        # (true camera, ideal camera) -> fixed-point cv2.remap maps
         self._respawner = None if scene.respawn is None else Respawner(self, scene.respawn)
 
@@ -340,9 +340,11 @@ class SimWorld(PyBulletClientOwner):
         """(6,) [linear velocity (m/s); angular velocity (rad/s)] of the link frame's origin, in base."""
         state = p.getLinkState(self._robot, self._link(link), computeLinkVelocity=True,
                                computeForwardKinematics=True, physicsClientId=self._client)
-        omega = np.asarray(state[7])
-        v_origin = np.asarray(state[6]) + np.cross(omega, np.subtract(state[4], state[0]))
-        return np.concatenate([v_origin, omega])
+        if link not in self._pose_cache:     # the pose comes with it: ``link_pose`` need not ask again
+            self._pose_cache[link] = fastmath.from_xyz_quat(state[4], state[5])
+        (wx, wy, wz), (vx, vy, vz) = state[7], state[6]
+        rx, ry, rz = (a - b for a, b in zip(state[4], state[0]))      # centre of mass -> link origin
+        return np.array([vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx, wx, wy, wz])
 
     def object_poses(self):
         """Ground truth T_base_block (4x4) of every block (top-face centre frame), in scene order."""
@@ -386,24 +388,23 @@ class SimWorld(PyBulletClientOwner):
         look = self.scene.appearance
         if rng is None and gain == 1.0 and not look.scales_intensity():
             return image
-        return appearance.form_image(image, look, camera, rng, gain, self._vignette(camera))
+        return appearance.form_image(image, look, camera, rng, gain, self._pixel_gain(camera))
 
     def prepare_camera(self, camera):
         """Compute now what the first frame of ``camera`` needs (ideal camera, remap maps, vignetting, the noise bank:
         0.1-0.3 s, which would stall the loop). No PyBullet call: a service thread may call it."""
         self._true_camera(camera)
-        self._vignette(camera)
+        self._pixel_gain(camera)
         look = self.scene.appearance
         if look.noise_std > 0 or look.colour_noise_std > 0:
             appearance._noise_bank((camera.height, camera.width, 3), look.noise_std, look.colour_noise_std)
 
-    def _vignette(self, camera):
-        """(H, W, 3) vignetting gain of ``camera`` under ``scene.appearance`` (None without vignetting), cached."""
+    def _pixel_gain(self, camera):
+        """``appearance.pixel_gain`` of ``camera`` under ``scene.appearance`` (None for the clean look), cached."""
         key = (camera.width, camera.height, tuple(camera.K.ravel()))
-        if key not in self._vignettes:
-            gain_map = appearance.vignetting_gain(camera, self.scene.appearance.vignetting)
-            self._vignettes[key] = None if gain_map is None else np.repeat(gain_map[:, :, None], 3, axis=2)
-        return self._vignettes[key]
+        if key not in self._pixel_gains:
+            self._pixel_gains[key] = appearance.pixel_gain(camera, self.scene.appearance)
+        return self._pixel_gains[key]
 
     def _true_camera(self, camera):
         """(ideal pinhole camera to render, fixed-point cv2.remap maps from it to the true camera) of ``camera``."""
@@ -547,12 +548,13 @@ class _Gripper:
         states = p.getJointStates(self._world._robot, self.indices, physicsClientId=self._world._client)
         return tuple(self.signs * np.array([s[k] for s in states]) for k in (0, 1, 3))
 
-    def _touched_blocks(self, finger):
-        """Body ids of the blocks touching finger 0 (l) or 1 (r), its paddle tip included."""
+    def _touched_blocks(self):
+        """[body ids of the blocks touching finger 0 (l), those touching finger 1 (r)], paddle tips included."""
         blocks = set(self._world._blocks)
-        return {contact[2] for contact in p.getContactPoints(bodyA=self._world._robot,
-                                                             physicsClientId=self._world._client)
-                if contact[3] in self.contact_links[finger] and contact[2] in blocks}
+        contacts = [(contact[3], contact[2]) for contact in p.getContactPoints(bodyA=self._world._robot,
+                                                                              physicsClientId=self._world._client)
+                    if contact[2] in blocks]
+        return [{block for link, block in contacts if link in finger_links} for finger_links in self.contact_links]
 
     def state(self):
         opening, _, force = self._opening()
@@ -560,7 +562,7 @@ class _Gripper:
         starting = (self._world.time - self.command_time < GRIPPER_START_TIME
                     and np.max(np.abs(opening - self.target)) > 5e-4)
         moving = bool(abs(self.speed) > GRIPPER_STILL_SPEED or starting)
-        touched = [self._touched_blocks(0), self._touched_blocks(1)]
+        touched = self._touched_blocks()
         closed = position_percent <= GRIPPER_CLOSED_PERCENT
         holding = bool(touched[0] & touched[1]) and not closed
         # A block squeezed by compliant pads creeps a little: once gripping, only losing it or opening ends it

@@ -68,6 +68,11 @@ def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():
     assert pose_error(pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA)[0],
                            T_goal)[0] < 1e-9
     assert pick.converged(T_goal, T_goal, config) and not pick.converged(near, T_goal, config)
+    # no full step on an uncertain estimate: the block known to 5 mm only, the last step stays a fraction
+    uncertain, _ = pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, position_std=0.005)
+    assert pose_error(uncertain, T_goal)[0] == pytest.approx((1 - config.step_fraction) * 0.005, rel=1e-6)
+    certain, _ = pick.pbvs_target(near, T_goal, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, position_std=0.001)
+    assert pose_error(certain, T_goal)[0] < 1e-9
 
 
 @pytest.fixture(scope='module')

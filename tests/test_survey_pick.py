@@ -48,6 +48,8 @@ def test_a_block_outside_the_start_view_is_surveyed_mapped_and_picked(ros_master
         # 5 mm: the map fuses estimates from 0.43 m up at the image's edge (1.5 mm std) and the block frame's
         # position is its top-face centre in both
         np.testing.assert_allclose(mapped[0]['position_m'][:2], T_base_block_before[:2, 3], atol=0.005)
+        error = np.linalg.norm(np.subtract(mapped[0]['position_m'], T_base_block_before[:3, 3]))
+        assert error <= 3 * mapped[0]['std_m'], (error, mapped[0]['std_m'])     # the map says how far it may be
         markers = seen[TABLE_MAP_TOPIC].markers
         assert [m.ns for m in markers if m.action == m.ADD] == ['table_map'] and markers[-1].header.frame_id == 'base'
         T_base_block = ground_truth_block()

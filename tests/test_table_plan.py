@@ -8,7 +8,8 @@ from baxter_pnp.table_plan import PlanError
 
 
 def block(block_id, colour, xy, shape='square', z=-0.13):
-    return MapBlock(block_id, shape, colour, np.array([xy[0], xy[1], z]), 0.001, 0.0, 1, 0.0, [], np.zeros(2))
+    return MapBlock(block_id, shape, colour, np.array([xy[0], xy[1], z]), np.eye(3) * 1e-6, 0.0, 1, 0.0, [],
+                    np.zeros(2))
 
 
 SCENE = [block(1, 'green', (0.70, 0.25)), block(2, 'red', (0.62, 0.10)), block(3, 'green', (0.55, 0.30)),

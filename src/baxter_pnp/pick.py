@@ -103,6 +103,7 @@ class StepRecord:
     depth_m: float                # estimated depth of the block's top face (m)
     block_base_xyz: List[float]   # estimated block position in base (m)
     block_in_gripper_mm: List[float]  # estimated block centre in the gripper frame (mm): the thesis's x, y errors
+    position_std_mm: Optional[float] = None   # the estimate's std along its least certain direction (mm)
 
 
 @dataclass
@@ -208,7 +209,7 @@ def converged(T_current, T_goal, config):
 
 
 def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gripper_camera, clearance_px=None,
-                view_depth=None):
+                view_depth=None, position_std=None):
     """Next gripper pose of the look-and-move PBVS (the thesis's law, with its failures fixed), and the goal
     it steps toward.
 
@@ -216,8 +217,9 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     rotation, and shortened so that the block's vertices stay ``view_margin_px`` inside the image and,
     given the hand's ``clearance_px`` map (``view.hand_clearance_px``), clear of the fingers after the move
     (``view.keep_in_view_step``). Within ``snap_distance`` of the goal the step goes all the way, which
-    ends the exponential tail. The goal is the hover pose ``T_base_hover``, unless the straight path there
-    would take the block behind a finger (at the hover pose the block sits between the fingers, at the top
+    ends the exponential tail, unless the block's position is uncertain: ``position_std`` (m, the estimate's
+    ``PoseEstimate.position_std_m``; None: unknown, trusted) above ``position_tolerance``. The goal is the hover
+    pose ``T_base_hover``, unless the straight path there would take the block behind a finger (at the hover pose the block sits between the fingers, at the top
     of the image): then it is :func:`view_pose` (at ``view_depth``, default ``config.view_depth``), from
     where the path up between the fingers is clear.
     Returns ``(T_base_gripper_next, T_base_goal)``.
@@ -228,7 +230,8 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
                                                            T_gripper_camera, config.view_margin_px, clearance_px):
         T_base_goal = view_pose(T_base_block, T_base_hover, T_gripper_camera, camera, config, view_depth)
     translation, _ = pose_error(T_base_gripper, T_base_goal)
-    fraction = 1.0 if translation <= config.snap_distance else config.step_fraction
+    certain = position_std is None or position_std <= config.position_tolerance
+    fraction = 1.0 if translation <= config.snap_distance and certain else config.step_fraction
     T_next = view.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
                                      margin_px=config.view_margin_px, max_translation=config.max_step_translation,
                                      max_rotation=config.max_step_rotation, clearance_px=clearance_px)

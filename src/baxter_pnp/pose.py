@@ -113,6 +113,14 @@ class PoseEstimate:
         """Yaw (rad) about the top-face normal from the projected camera x axis (module docstring)."""
         return _yaw_about_normal(self.T_camera_object[:3, :3])[0]
 
+    @property
+    def position_std_m(self):
+        """Standard deviation (m) of the block origin along its least certain direction (nearly the viewing ray:
+        the square root of the largest eigenvalue of the translation covariance); None without a covariance."""
+        if self.covariance is None:
+            return None
+        return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[:3, :3])[-1], 0.0)))
+
 
 def estimate_pose(vertices_px, camera, model, method='sqp', table_plane=None, initial=None):
     """Pose of ``model`` from its top-face vertices ``vertices_px`` ((n, 2) distorted pixels).

@@ -199,10 +199,10 @@ class TableTaskApplication:
         return self.eye.look(after_stamp=rospy.get_time())
 
     def seen(self, look, shape, colour, level, near_xy, radius=SEEN_NEAR):
-        """(T_base_block, std) of the look's ``shape`` ``colour`` block on ``level`` (None: any) nearest
-        ``near_xy`` within ``radius`` (m), or (None, None). On a given level, its estimate is moved along its
-        viewing ray onto that level's height (``table_plan.on_height``: a depth error, and the lateral error that
-        comes with it, removed)."""
+        """(T_base_block, its ``table_map.Sighting``) of the look's ``shape`` ``colour`` block on ``level`` (None:
+        any) nearest ``near_xy`` within ``radius`` (m), or (None, None). On a given level, its estimate is moved
+        along its viewing ray onto that level's height (``table_plan.on_height``: a depth error, and the lateral
+        error that comes with it, removed; the sighting keeps the lateral error, ``table_map.sighting_std``)."""
         c, table = self.config, self.session.table
         best, best_distance = None, radius
         for observation in look.observations:
@@ -216,8 +216,13 @@ class TableTaskApplication:
                                                     table.z_at(T_base_block[:2, 3]) + level * c.block_height)
             distance = float(np.linalg.norm(T_base_block[:2, 3] - np.asarray(near_xy)))
             if distance <= best_distance:
-                std = table_map.sightings_from_look([observation], look.T_base_camera, look.frame.camera)[0].std
-                best, best_distance = (T_base_block, std), distance
+                sighting = table_map.sightings_from_look([observation], look.T_base_camera, look.frame.camera)[0]
+                if level is not None:
+                    camera = look.frame.camera
+                    sighting = table_map.Sighting(shape, colour, T_base_block, table_map.sighting_std(
+                        np.linalg.norm(observation.pose.T_camera_object[:3, 3]), observation.pose.residual_px,
+                        0.5 * (camera.K[0, 0] + camera.K[1, 1])))
+                best, best_distance = (T_base_block, sighting), distance
         return best if best is not None else (None, None)
 
     @staticmethod
@@ -258,9 +263,9 @@ class TableTaskApplication:
                 xy = move.to_xy if move.level == 1 else self.guide_over(move)
                 self.picker.put_down(xy, self.session.table.z_at(xy) + (move.level - 1) * c.block_height,
                                      'the %s %s' % (move.colour, move.shape))
-                T_seen, std = self.verify(move, xy, step)
+                T_seen, sighting = self.verify(move, xy, step)
                 if step.verified:
-                    self.map.moved(block_id, T_seen, rospy.get_time(), std)
+                    self.map.moved(block_id, sighting, rospy.get_time())
                     if self.task == 'stack':
                         self.tower_top = (move.shape, move.colour, T_seen)
                     break
@@ -284,10 +289,10 @@ class TableTaskApplication:
 
     def verify(self, move, xy, step):
         """The look after putting down: the block on its level within the tolerance of ``xy`` (m) sets
-        ``step.verified`` and ``error_mm``. Returns (T_base_block seen, std) or (None, None)."""
+        ``step.verified`` and ``error_mm``. Returns (T_base_block seen, its ``table_map.Sighting``) or (None, None)."""
         c = self.config
         look = self.look_from_view(self.block_pose_at(xy, move.level), 'where it was put')
-        T_seen, std = self.seen(look, move.shape, move.colour, move.level, xy)
+        T_seen, sighting = self.seen(look, move.shape, move.colour, move.level, xy)
         if T_seen is None:
             rospy.logwarn('table_task: the look does not find the %s %s on level %d at (%.3f, %.3f) m (it saw: %s)'
                           % (move.colour, move.shape, move.level, *xy, self.described(look)))
@@ -298,7 +303,7 @@ class TableTaskApplication:
         (rospy.loginfo if step.verified else rospy.logwarn)(
             'table_task: the %s %s is seen %.1f mm from its place on level %d: %s'
             % (move.colour, move.shape, step.error_mm, move.level, 'verified' if step.verified else 'NOT verified'))
-        return T_seen, std
+        return T_seen, sighting
 
     def guide_over(self, move):
         """Stacking: a look at the top face of the block below from its view pose (the held block does not hide

@@ -163,17 +163,19 @@ class Picker:
     # ================================================================================ approach laws
     def record(self, step, look, T_goal, error_px):
         translation, rotation = pose_error(look.T_base_gripper, T_goal)
-        depth = look.target.pose.depth_m
+        depth, std = look.target.pose.depth_m, look.target.pose.position_std_m
         block_in_gripper = (invert(look.T_base_gripper) @ look.T_base_block)[:3, 3]
         self.result.history.append(pick.StepRecord(step, self.session.elapsed(), 1000 * translation,
                                                    np.degrees(rotation), error_px, depth,
                                                    np.round(look.T_base_block[:3, 3], 5).tolist(),
-                                                   np.round(1000 * block_in_gripper, 2).tolist()))
+                                                   np.round(1000 * block_in_gripper, 2).tolist(),
+                                                   None if std is None else round(1000 * std, 2)))
         self.result.steps = step
         self.result.final_error_mm_est = 1000 * translation
-        rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base'
+        rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base%s'
                       % (self.config.mode, step, 1000 * translation, np.degrees(rotation), error_px, 1000 * depth,
-                         np.round(1000 * look.T_base_block[:3, 3], 1).tolist()))
+                         np.round(1000 * look.T_base_block[:3, 3], 1).tolist(),
+                         '' if std is None else ' (+- %.1f mm)' % (1000 * std)))
         return translation, rotation
 
     def approach_pbvs(self):
@@ -189,7 +191,7 @@ class Picker:
                 return look.T_base_block
             T_next, T_toward = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
                                                 T_gripper_camera, self.eye.hand_clearance(look.frame.camera),
-                                                approach.view_depth)
+                                                approach.view_depth, look.target.pose.position_std_m)
             self.motion.move_to_pose(T_next, 'servo step %d%s' % (step + 1, '' if T_toward is T_goal else
                                                                    ' (via the view pose: a straight path would pass '
                                                                    'the block behind a finger)'))

@@ -43,6 +43,21 @@ def test_only_believable_estimates_are_targets():
     assert not target.believable(no_pose, T_BASE_CAMERA, RULES)
 
 
+def test_a_far_estimate_is_given_the_height_its_uncertainty_allows():
+    """2.5 cm below the table: not believed when known to 2 mm, believed when the estimate itself says its height is
+    uncertain by 10 mm (3 sigma: 30 mm), never beyond twice max_height_error (an estimate uncertain by 50 mm)."""
+    low = observation(0.70, 0.10, z=TABLE_Z + 0.02 - 0.025)
+
+    def with_std_z(std_z):            # the camera looks straight down: base z is -camera z
+        covariance = np.diag([1e-6, 1e-6, std_z ** 2, 1e-4, 1e-4, 1e-4])
+        return BlockObservation(low.detection, PoseEstimate(low.pose.T_camera_object, 0.3, 'sqp', covariance))
+    assert target.height_tolerance(with_std_z(0.010).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.030)
+    assert not target.believable(with_std_z(0.002), T_BASE_CAMERA, RULES)
+    assert target.believable(with_std_z(0.010), T_BASE_CAMERA, RULES)
+    assert not target.believable(observation(0.70, 0.10, z=TABLE_Z + 0.02 - 0.045), T_BASE_CAMERA, RULES)
+    assert target.height_tolerance(with_std_z(0.050).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.040)
+
+
 def test_choose_target_tracks_the_same_block_else_takes_the_largest():
     small, large = observation(0.70, 0.02, area=800.0), observation(0.75, 0.20, area=1200.0)
     image_size = (640, 400)

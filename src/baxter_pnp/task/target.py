@@ -3,8 +3,12 @@ cut by the image border.
 
 A look gives ``perception.BlockObservation`` s (pose in the camera frame); ``T_base_camera`` (4x4, m) puts them
 in ``base``. An estimate is *believable* when its RMS reprojection residual is below ``max_residual_px`` and (a
-block lying on the table) its top face is within ``max_height_error`` of the table top + block height; blocks
-within two sides of ``place_xy`` count as already placed. Among believable ones the target is the one nearest
+block lying on the table) its top face is within ``height_tolerance`` of the table top + block height:
+``max_height_error``, or three of the estimate's own standard deviations along base z (its covariance rotated
+into base) up to twice that: a far block seen at a grazing angle, whose depth is uncertain by a centimetre or
+more, is believed and approached (PBVS steps a fraction of the way, the velocity laws go to the view pose, and
+the nearer looks shrink its uncertainty, and the tolerance with it), not dropped. Blocks within two sides of
+``place_xy`` count as already placed. Among believable ones the target is the one nearest
 the last estimate (tracking the same block), else the largest / most central (``vision.select_target``).
 """
 from dataclasses import dataclass
@@ -52,7 +56,16 @@ def believable(observation, T_base_camera, rules, on_table=True, placed_too=Fals
             and np.linalg.norm(position[:2] - np.asarray(rules.place_xy)) < 2 * rules.side_length):
         return False
     expected_z = rules.table.z_at(position[:2]) + rules.block_height
-    return not on_table or abs(position[2] - expected_z) <= rules.max_height_error
+    return not on_table or abs(position[2] - expected_z) <= height_tolerance(pose, T_base_camera, rules)
+
+
+def height_tolerance(pose, T_base_camera, rules):
+    """How far (m) the estimate ``pose`` may put a block off its height on the table (module docstring)."""
+    if pose.covariance is None:
+        return rules.max_height_error
+    z_base = T_base_camera[2, :3]           # base z in camera coordinates: var_z = z^T C z
+    std_z = float(np.sqrt(max(z_base @ pose.covariance[:3, :3] @ z_base, 0.0)))
+    return float(np.clip(3.0 * std_z, rules.max_height_error, 2.0 * rules.max_height_error))
 
 
 def choose_target(observations, T_base_camera, rules, image_size, T_base_last=None, on_table=True,

@@ -100,9 +100,15 @@ def publish_until(pub, message, condition, timeout):
 
 
 def rate_hz(stamps):
-    """Rate (Hz) of messages received with these simulated time stamps (s)."""
-    stamps = np.sort(np.asarray(stamps))
-    return (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    """Publication rate (Hz) of messages received with these simulated time stamps (s): publications per second,
+    a gap of about k typical intervals counted as k publications (k - 1 of them not received: a loaded machine
+    with a fake several times faster than real time drops some), so that drops do not bias it. Typical: the mean
+    of the intervals up to 1.6 medians (stamps fall on physics steps: at 100 Hz on 240 Hz steps the intervals
+    alternate 8.3 and 12.5 ms)."""
+    stamps = np.unique(np.asarray(stamps, dtype=float))
+    gaps = np.diff(stamps)
+    typical = gaps[gaps <= 1.6 * np.median(gaps)].mean()
+    return float(np.maximum(np.round(gaps / typical), 1.0).sum() / (stamps[-1] - stamps[0]))
 
 
 def published_rate_hz(messages):

@@ -16,6 +16,8 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
+GRASP_FLOOR_CLEARANCE = 0.001   # m: a grasp estimated below the table margin closes this far above it instead
+
 
 class Picker:
     """Picks one block at a time with a connected ``RobotSession``, its ``Motion`` and ``Eye``: ``config`` a
@@ -97,10 +99,13 @@ class Picker:
                                           c.backoff_height / 2)
             elif self.survey is not None and not self.surveyed and (self.T_base_last_block is None
                                                                     or lost == c.max_lost):
-                self.survey_for_block(look)
-                T_view, _ = target.search_pose(look.T_base_gripper, 0, c.backoff_height, self.view_of_last_block(look),
-                                               self.reachable)
-                self.motion.move_to_pose(T_view, 'view the block the survey found')
+                T_seen_from = self.survey_for_block(look)
+                T_view = self.view_of_last_block(look)
+                if self.reachable(T_view):
+                    self.motion.move_to_pose(T_view, 'view the block the survey found')
+                else:                   # far out: back where the survey saw it (visited, so reachable)
+                    self.motion.move_to_pose(T_seen_from, 'view the block from the survey view that saw it (the '
+                                                          'view over it is out of reach)')
                 return self.look_for_block(rospy.get_time())
             else:
                 if lost == c.max_lost:
@@ -113,7 +118,8 @@ class Picker:
 
     def survey_for_block(self, look):
         """Survey the table (``task.survey``) and take the nearest block of the target's shape and colour (not
-        one already placed) as the last-seen block; TaskFailure('block_lost') when the table has none."""
+        one already placed) as the last-seen block; TaskFailure('block_lost') when the table has none. Returns the
+        gripper pose (4x4, base) of the survey view nearest the block among those that saw it."""
         c = self.config
         rospy.logwarn('pick: the %s %s is not in view: surveying the table' % (c.colour, c.shape))
         self.surveyed = True
@@ -126,6 +132,8 @@ class Picker:
         rospy.loginfo('pick: the survey found the %s %s at %s mm' % (c.colour, c.shape,
                                                                      np.round(1000 * block.position, 1).tolist()))
         self.T_base_last_block = block.T_base_block
+        seen_from = [self.survey.view_poses[view] for view in block.view_ids if view in self.survey.view_poses]
+        return min(seen_from, key=lambda T: np.linalg.norm(T[:2, 3] - block.position[:2]))
 
     def view_of_last_block(self, look):
         """The velocity laws' view pose over the last-seen block (``pick.view_pose``), None if none was seen."""
@@ -306,6 +314,13 @@ class Picker:
         """Descend, close, verify (gripper state, then lift and look). True on a verified grasp."""
         c, gripper, limb = self.config, self.session.gripper, self.session.limb
         T_grasp = pick.grasp_pose(T_base_block, c, limb.endpoint_pose())
+        floor_z = (self.session.table.z_at(T_grasp[:2, 3]) + self.session.safety.limits.tip_margin
+                   + GRASP_FLOOR_CLEARANCE)
+        if T_grasp[2, 3] < floor_z:        # an estimate biased low (a dim look): close just above the table margin
+            rospy.logwarn('pick: the grasp would take the fingertips %.1f mm below the table margin (the block '
+                          'estimated low?): closing %.0f mm above the margin'
+                          % (1000 * (floor_z - GRASP_FLOOR_CLEARANCE - T_grasp[2, 3]), 1000 * GRASP_FLOOR_CLEARANCE))
+            T_grasp[2, 3] = floor_z
         self.motion.move_to_pose(T_grasp, 'descend to grasp')
         gripper.close(block=True, timeout=3.0)
         if not gripper.gripping() or gripper.missed():

@@ -30,6 +30,7 @@ class Survey:
         self.session, self.motion, self.eye = session, motion, eye
         self.area = survey.TableRect(*area)
         self._plans = {}            # camera model key -> [T_base_gripper]
+        self.view_poses = {}        # view id ('survey_k') -> T_base_gripper (4x4) of the last run's looks
         self._map_pub = rospy.Publisher(TABLE_MAP_TOPIC, MarkerArray, queue_size=1, latch=True)
         self._json_pub = rospy.Publisher(TABLE_MAP_JSON_TOPIC, String, queue_size=1, latch=True)
 
@@ -72,10 +73,12 @@ class Survey:
 
     def run(self, believable, camera):
         """Visit the viewpoints (nearest first) and look at each; the blocks ``believable(observation,
-        T_base_camera)`` accepts go into a new TableMap, which is published and returned."""
+        T_base_camera)`` accepts go into a new TableMap, which is published and returned (its view ids are the keys
+        of ``view_poses``: where the gripper was for each look)."""
         session = self.session
         plan = survey.order_viewpoints(self.viewpoints(camera), start=session.limb.endpoint_pose()[:3, 3])
         found = table_map.TableMap()
+        self.view_poses = {}
         for k, T_base_gripper in enumerate(plan, start=1):
             session.check_deadline()
             self.motion.move_to_pose(T_base_gripper, 'survey view %d of %d' % (k, len(plan)))
@@ -83,6 +86,7 @@ class Survey:
             kept = [o for o in look.observations if believable(o, look.T_base_camera)]
             found.add_look(table_map.sightings_from_look(kept, look.T_base_camera, look.frame.camera),
                            look.frame.stamp, 'survey_%d' % k)
+            self.view_poses['survey_%d' % k] = look.T_base_gripper
         for block in found.blocks():
             rospy.loginfo('%s: table map: %s %s at %s mm (+- %.1f mm, %d view(s))'
                           % (session.log_name, block.colour, block.shape, np.round(1000 * block.position, 1).tolist(),

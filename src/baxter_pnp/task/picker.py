@@ -16,8 +16,6 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
-GRASP_FLOOR_CLEARANCE = 0.001   # m: a grasp estimated below the table margin closes this far above it instead
-
 
 class Picker:
     """Picks one block at a time with a connected ``RobotSession``, its ``Motion`` and ``Eye``: ``config`` a
@@ -314,13 +312,6 @@ class Picker:
         """Descend, close, verify (gripper state, then lift and look). True on a verified grasp."""
         c, gripper, limb = self.config, self.session.gripper, self.session.limb
         T_grasp = pick.grasp_pose(T_base_block, c, limb.endpoint_pose())
-        floor_z = (self.session.table.z_at(T_grasp[:2, 3]) + self.session.safety.limits.tip_margin
-                   + GRASP_FLOOR_CLEARANCE)
-        if T_grasp[2, 3] < floor_z:        # an estimate biased low (a dim look): close just above the table margin
-            rospy.logwarn('pick: the grasp would take the fingertips %.1f mm below the table margin (the block '
-                          'estimated low?): closing %.0f mm above the margin'
-                          % (1000 * (floor_z - GRASP_FLOOR_CLEARANCE - T_grasp[2, 3]), 1000 * GRASP_FLOOR_CLEARANCE))
-            T_grasp[2, 3] = floor_z
         self.motion.move_to_pose(T_grasp, 'descend to grasp')
         gripper.close(block=True, timeout=3.0)
         if not gripper.gripping() or gripper.missed():

@@ -213,13 +213,13 @@ def scene_conditions(scene):
 
 
 def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=300.0, seed=0, trial=0,
-              place_xy=None):
+              place_xy=None, real_time_factor=0.0):
     """One full pick (and place at ``place_xy``, base x, y in m, if given) on a fresh fake Baxter, scored
     with the ground truth; returns a CSV row dict. A place run is verified when the app succeeded and the
     block ends on the table within ``PLACE_TOLERANCE`` of ``place_xy`` (``place_error_mm``).
 
-    Writes ``scene.yaml`` to ``workdir``, starts ``fake_baxter.py --scene scene.yaml --real-time-factor 0
-    --seed seed`` on ``master`` (a ``launcher.RosMaster``), runs ``scripts/pick_square.py`` (its log
+    Writes ``scene.yaml`` to ``workdir``, starts ``fake_baxter.py --scene scene.yaml --real-time-factor
+    real_time_factor --seed seed`` (default unpaced) on ``master`` (a ``launcher.RosMaster``), runs ``scripts/pick_square.py`` (its log
     ``pick.log``, ``result.json`` and outputs in ``workdir``; interrupted after ``timeout`` wall seconds),
     then reads the block and gripper poses and scores them (:func:`score`). This process's rospy node must
     already run on ``master`` (see :func:`main`).
@@ -237,7 +237,8 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
     if os.path.exists(result_path):
         os.remove(result_path)
     monitor = GroundTruthMonitor()
-    fake = FakeBaxterProcess(master, ['--scene', scene_path, '--real-time-factor', '0', '--seed', seed],
+    fake = FakeBaxterProcess(master, ['--scene', scene_path, '--real-time-factor', '%g' % real_time_factor,
+                                      '--seed', seed],
                              log_path=os.path.join(workdir, 'fake_baxter.log'))
     run, samples, error = None, [], None
     try:

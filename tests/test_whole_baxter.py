@@ -234,7 +234,7 @@ def test_joint_recorder_then_joint_position_file_playback(fake, tmp_path, keeps_
     with open(path, 'w') as f:
         f.write('time,' + ','.join(limbs['left'].joint_names()) + ',left_gripper,'
                 + ','.join(limbs['right'].joint_names()) + ',right_gripper\n')
-        while rospy.get_time() - start < 4.0:
+        while rospy.get_time() - start < 6.0:     # 4 s after the close: the gripper state this client reads lags
             while presses and rospy.get_time() - start > presses[0][0]:     # the person's hand on the cuff
                 press(*presses.pop(0)[1:])
             if buttons['right_lower_button'].state:

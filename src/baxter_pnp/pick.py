@@ -219,9 +219,9 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     (``view.keep_in_view_step``). Within ``snap_distance`` of the goal the step goes all the way, which
     ends the exponential tail, unless the block's position is uncertain: ``position_std`` (m, the estimate's
     ``PoseEstimate.position_std_m``; None: unknown, trusted) above ``position_tolerance``. The goal is the hover
-    pose ``T_base_hover``, unless the straight path there would take the block behind a finger (at the hover pose the block sits between the fingers, at the top
-    of the image): then it is :func:`view_pose` (at ``view_depth``, default ``config.view_depth``), from
-    where the path up between the fingers is clear.
+    pose ``T_base_hover``, unless the straight path there would take the block behind a finger (at the hover pose
+    the block sits between the fingers, at the top of the image): then it is :func:`view_pose` (at ``view_depth``,
+    default ``config.view_depth``), from where the path up between the fingers is clear.
     Returns ``(T_base_gripper_next, T_base_goal)``.
     """
     vertices_base = transform_points(T_base_block, config.model.vertices)

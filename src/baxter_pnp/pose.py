@@ -116,10 +116,13 @@ class PoseEstimate:
     @property
     def position_std_m(self):
         """Standard deviation (m) of the block origin along its least certain direction (nearly the viewing ray:
-        the square root of the largest eigenvalue of the translation covariance); None without a covariance."""
-        if self.covariance is None:
-            return None
-        return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance[:3, :3])[-1], 0.0)))
+        ``largest_std`` of the translation covariance); None without a covariance."""
+        return None if self.covariance is None else largest_std(self.covariance[:3, :3])
+
+
+def largest_std(covariance):
+    """Square root of the largest eigenvalue of a covariance matrix: the std along its least certain direction."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(covariance)[-1], 0.0)))
 
 
 def estimate_pose(vertices_px, camera, model, method='sqp', table_plane=None, initial=None):

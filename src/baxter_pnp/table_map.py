@@ -27,6 +27,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from baxter_pnp.models import SHAPES
+from baxter_pnp.pose import largest_std
 
 TRACK_RADIUS = 0.05     # m: task.target.TRACK_RADIUS (kept here so the map imports nothing but models)
 PIXEL_STD = 1.0         # px: the corner detector's noise floor
@@ -58,16 +59,16 @@ def floored_covariance(covariance, std):
     return (vectors * np.maximum(eigenvalues, std ** 2)) @ vectors.T
 
 
-def largest_std(covariance):
-    """Square root of the largest eigenvalue of a 3x3 covariance (m): the std along the least certain direction."""
-    return float(np.sqrt(max(np.linalg.eigvalsh(covariance)[-1], 0.0)))
+def lateral_std(pose, camera, pixel_std=PIXEL_STD):
+    """``sighting_std`` of a ``pose.PoseEstimate`` seen by ``camera`` (``CameraModel``: its mean focal length), m."""
+    return sighting_std(np.linalg.norm(pose.T_camera_object[:3, 3]), pose.residual_px,
+                        0.5 * (camera.K[0, 0] + camera.K[1, 1]), pixel_std)
 
 
 def sightings_from_look(observations, T_base_camera, camera, pixel_std=PIXEL_STD):
     """The ``Sighting`` s of a look's ``perception.BlockObservation`` s (those with a pose), through
-    ``T_base_camera`` (camera pose in base, 4x4 m) and ``camera`` (``CameraModel``: its focal length); the module
-    docstring's uncertainty model."""
-    focal = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
+    ``T_base_camera`` (camera pose in base, 4x4 m) and ``camera`` (``CameraModel``); the module docstring's
+    uncertainty model."""
     R_base_camera = T_base_camera[:3, :3]
     sightings = []
     for observation in observations:
@@ -75,7 +76,7 @@ def sightings_from_look(observations, T_base_camera, camera, pixel_std=PIXEL_STD
         if pose is None:
             continue
         T_camera_block = pose.T_camera_object
-        lateral = sighting_std(np.linalg.norm(T_camera_block[:3, 3]), pose.residual_px, focal, pixel_std)
+        lateral = lateral_std(pose, camera, pixel_std)
         estimated = np.zeros((3, 3)) if pose.covariance is None else pose.covariance[:3, :3]
         covariance = floored_covariance(R_base_camera @ estimated @ R_base_camera.T, lateral)
         sightings.append(Sighting(observation.detection.shape, observation.detection.colour,

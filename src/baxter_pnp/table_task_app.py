@@ -202,7 +202,7 @@ class TableTaskApplication:
         """(T_base_block, its ``table_map.Sighting``) of the look's ``shape`` ``colour`` block on ``level`` (None:
         any) nearest ``near_xy`` within ``radius`` (m), or (None, None). On a given level, its estimate is moved
         along its viewing ray onto that level's height (``table_plan.on_height``: a depth error, and the lateral
-        error that comes with it, removed; the sighting keeps the lateral error, ``table_map.sighting_std``)."""
+        error that comes with it, removed; the sighting keeps the lateral error, ``table_map.lateral_std``)."""
         c, table = self.config, self.session.table
         best, best_distance = None, radius
         for observation in look.observations:
@@ -218,10 +218,8 @@ class TableTaskApplication:
             if distance <= best_distance:
                 sighting = table_map.sightings_from_look([observation], look.T_base_camera, look.frame.camera)[0]
                 if level is not None:
-                    camera = look.frame.camera
-                    sighting = table_map.Sighting(shape, colour, T_base_block, table_map.sighting_std(
-                        np.linalg.norm(observation.pose.T_camera_object[:3, 3]), observation.pose.residual_px,
-                        0.5 * (camera.K[0, 0] + camera.K[1, 1])))
+                    sighting = table_map.Sighting(shape, colour, T_base_block,
+                                                  table_map.lateral_std(observation.pose, look.frame.camera))
                 best, best_distance = (T_base_block, sighting), distance
         return best if best is not None else (None, None)
 

@@ -219,10 +219,10 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
     block ends on the table within ``PLACE_TOLERANCE`` of ``place_xy`` (``place_error_mm``).
 
     Writes ``scene.yaml`` to ``workdir``, starts ``fake_baxter.py --scene scene.yaml --real-time-factor
-    real_time_factor --seed seed`` (default unpaced) on ``master`` (a ``launcher.RosMaster``), runs ``scripts/pick_square.py`` (its log
-    ``pick.log``, ``result.json`` and outputs in ``workdir``; interrupted after ``timeout`` wall seconds),
-    then reads the block and gripper poses and scores them (:func:`score`). This process's rospy node must
-    already run on ``master`` (see :func:`main`).
+    real_time_factor --seed seed`` (default unpaced) on ``master`` (a ``launcher.RosMaster``), runs
+    ``scripts/pick_square.py`` (its log ``pick.log``, ``result.json`` and outputs in ``workdir``; interrupted
+    after ``timeout`` wall seconds), then reads the block and gripper poses and scores them (:func:`score`). This
+    process's rospy node must already run on ``master`` (see :func:`main`).
     """
     import rospy
     from baxter_pnp.sim.launcher import FakeBaxterProcess, run_script

@@ -4,8 +4,10 @@ own programs (baxter_tools and baxter_examples 1.2.0) use them.
 The SDK is not installable here, so the clients of ``sdk_clients.py`` (``Sdk*``) touch exactly the topics, services,
 parameters and waits of ``baxter_interface`` 1.2.0 (``baxter_dataflow.wait_for`` in ROS time, its timeouts and
 rates); each test names the program it mirrors and does what that program does, in order. One fake Baxter (booted
-disabled, as a robot, unpaced) serves the whole module; the tests run in file order and each leaves the robot
-enabled or disabled as the next one's program expects to find it.
+disabled, as a robot) serves the whole module at a real-time factor of 1: those programs' timeouts (2 s for an output's
+state to follow) assume a robot at real time, and an unpaced fake at 5x left a loaded CI machine 0.4 wall s for a
+publisher's connection. The tests run in file order and each leaves the robot enabled or disabled as the next one's
+program expects to find it.
 """
 import errno
 import math
@@ -69,7 +71,7 @@ def wait_wall(condition, timeout=10.0):
 
 @pytest.fixture(scope='module')
 def fake(ros_node, fake_baxter):
-    return fake_baxter('--real-time-factor', '0')
+    return fake_baxter('--real-time-factor', '1')
 
 
 # ============================================================================ identity, enable, messages

@@ -58,6 +58,22 @@ def test_a_far_estimate_is_given_the_height_its_uncertainty_allows():
     assert target.height_tolerance(with_std_z(0.050).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.040)
 
 
+def test_an_estimate_off_its_height_tells_the_side_length_that_would_put_it_on_the_table():
+    """A 38.6 mm block posed with the 40 mm model lies 3.6 % farther along the same ray (the IBVS batch's rerun
+    of scene 63: 7 mm low at 0.19 m); the side length that puts it back on the table is the block's."""
+    true_side = 0.0386
+    on_table = np.array([0.70, 0.10, TABLE_Z + 0.02])
+    camera = T_BASE_CAMERA[:3, 3]
+    estimated = camera + (on_table - camera) * RULES.side_length / true_side
+    low = observation(*estimated)
+    assert target.height_error(low.pose, T_BASE_CAMERA, RULES) == pytest.approx(estimated[2] - on_table[2])
+    assert target.height_error(low.pose, T_BASE_CAMERA, RULES) < -0.005
+    assert target.implied_side_length(low.pose, T_BASE_CAMERA, RULES) == pytest.approx(true_side)
+    assert target.implied_side_length(observation(*on_table).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.04)
+    above_camera = observation(0.70, 0.10, 0.30)        # a ray that never meets the table in front of the camera
+    assert target.implied_side_length(above_camera.pose, T_BASE_CAMERA, RULES) is None
+
+
 def test_choose_target_tracks_the_same_block_else_takes_the_largest():
     small, large = observation(0.70, 0.02, area=800.0), observation(0.75, 0.20, area=1200.0)
     image_size = (640, 400)

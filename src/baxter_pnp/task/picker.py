@@ -16,6 +16,8 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
+HEIGHT_WARNING = 0.003      # m: a final estimate further off its height on the table (and off by 3 stds) is logged
+
 
 class Picker:
     """Picks one block at a time with a connected ``RobotSession``, its ``Motion`` and ``Eye``: ``config`` a
@@ -50,8 +52,11 @@ class Picker:
         c = self.config
         for attempt in range(1, c.max_grasp_attempts + 1):
             self.result.grasp_attempts = attempt
-            T_base_block = self.approach_pbvs() if c.mode == 'pbvs' else self.approach_velocity()
-            if self.grasp(T_base_block):
+            look = self.approach_pbvs() if c.mode == 'pbvs' else self.approach_velocity()
+            error = target.height_error(look.target.pose, look.T_base_camera, self.rules)
+            if abs(error) > max(3 * (target.height_std(look.target.pose, look.T_base_camera) or 0.0), HEIGHT_WARNING):
+                self.warn_off_height(look.target, look.T_base_camera, 'the grasp goes by the estimate')
+            if self.grasp(look.T_base_block):
                 self.result.time_s = self.session.elapsed()
                 rospy.loginfo('pick: block picked after %.1f s (%d steps, attempt %d)'
                               % (self.result.time_s, self.result.steps, attempt))
@@ -84,13 +89,21 @@ class Picker:
         """A look that finds the block whole: re-centres on a block cut by the image border and, when it is
         lost, looks from above where it was last seen, or higher (up to ``max_lost`` times in a row). A block
         never seen, or lost that long, is searched for by a survey of the table (once a cycle, ``survey``)."""
-        c = self.config
+        c, rules = self.config, self.rules
         for lost in range(c.max_lost + 1):
             self.session.check_deadline()
             look = self.look(after_stamp)
             if look.target is not None and not look.target.detection.touches_border:
                 self.T_base_last_block = look.T_base_block
                 return look
+            if look.target is None:
+                for o in look.observations:         # of the right kind, not believed for its height alone
+                    if ((o.detection.shape, o.detection.colour) == (rules.shape, rules.colour)
+                            and target.believable(o, look.T_base_camera, rules, on_table=False)):
+                        tolerance = target.height_tolerance(o.pose, look.T_base_camera, rules)
+                        if abs(target.height_error(o.pose, look.T_base_camera, rules)) > tolerance:
+                            self.warn_off_height(o, look.T_base_camera,
+                                                 'not believed: tolerance %.0f mm' % (1000 * tolerance))
             if look.target is not None:
                 rospy.logwarn('pick: block cut by the image border: re-centring on it')
                 T_next = target.recentred(look.T_base_gripper, look.T_base_camera, look.T_base_block,
@@ -113,6 +126,18 @@ class Picker:
             after_stamp = rospy.get_time()
         raise TaskFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves%s'
                           % (c.colour, c.shape, c.max_lost, ' and a survey' if self.surveyed else ''))
+
+    def warn_off_height(self, observation, T_base_camera, why):
+        """Log that ``observation``'s estimate is off its height on the table (``why``), with the side length that
+        would put it there: a ``side_length`` unlike the real block's moves every estimate along its ray by the
+        ratio of the two."""
+        rules = self.rules
+        error = target.height_error(observation.pose, T_base_camera, rules)
+        side = target.implied_side_length(observation.pose, T_base_camera, rules)
+        rospy.logwarn('pick: the %s %s is estimated %.1f mm %s its height on the table (%s); at %.1f mm a side it '
+                      'would lie on it: is side_length (%.1f mm) the blocks\' size?'
+                      % (rules.colour, rules.shape, 1000 * abs(error), 'above' if error > 0 else 'below', why,
+                         1000 * (side or float('nan')), 1000 * rules.side_length))
 
     def survey_for_block(self, look):
         """Survey the table (``task.survey``) and take the nearest block of the target's shape and colour (not
@@ -185,7 +210,8 @@ class Picker:
         return translation, rotation
 
     def approach_pbvs(self):
-        """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted."""
+        """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted.
+        Returns the look at the hover pose."""
         c, T_gripper_camera = self.config, self.session.hand_eye.T_gripper_camera
         look = self.look_for_block()
         approach = self.approach = self.plan_approach(look)
@@ -194,7 +220,7 @@ class Picker:
             self.record(step, look, T_goal, pick.image_error_px(look.frame.camera, look.target.pose.T_camera_object,
                                                                 T_goal, look.T_base_block, T_gripper_camera))
             if pick.converged(look.T_base_gripper, T_goal, c):
-                return look.T_base_block
+                return look
             T_next, T_toward = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
                                                 T_gripper_camera, self.eye.hand_clearance(look.frame.camera),
                                                 approach.view_depth, look.target.pose.position_std_m)
@@ -210,7 +236,7 @@ class Picker:
 
         A stall (the feature error not down by ``stall_progress`` within ``stall_time`` s of robot time: the arm
         crawling along a joint limit or a finger's edge) is followed by a position move (``move_after_stall``),
-        then the velocity law resumes."""
+        then the velocity law resumes. Returns the look at the hover pose."""
         c, session = self.config, self.session
         T_gripper_camera, kinematics, limb = session.hand_eye.T_gripper_camera, session.kinematics, session.limb
         gain = pick.make_gain(c)
@@ -237,7 +263,7 @@ class Picker:
                 continue
             if at_view and error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
                 limb.exit_control_mode()
-                return look.T_base_block
+                return look
             if stall.stalled(rospy.get_time(), error * camera.fx, at_view):
                 look = self.move_after_stall(look, T_goal, at_view, approach, stall)
                 continue

@@ -55,17 +55,42 @@ def believable(observation, T_base_camera, rules, on_table=True, placed_too=Fals
     if (not placed_too and rules.place_xy is not None
             and np.linalg.norm(position[:2] - np.asarray(rules.place_xy)) < 2 * rules.side_length):
         return False
+    return not on_table or abs(height_error(pose, T_base_camera, rules)) <= height_tolerance(pose, T_base_camera, rules)
+
+
+def height_error(pose, T_base_camera, rules):
+    """How far (m) the estimate ``pose`` puts the top face above (+) or below (-) the table top + block height."""
+    position = (T_base_camera @ pose.T_camera_object)[:3, 3]
+    return float(position[2] - (rules.table.z_at(position[:2]) + rules.block_height))
+
+
+def implied_side_length(pose, T_base_camera, rules):
+    """The side length (m) for which the estimate ``pose`` would put the top face at its height on the table, None
+    if its ray does not meet that height in front of the camera. The image fixes a block's pose up to scale about
+    the camera centre: a block smaller than the model is estimated farther along the same ray, by the ratio of
+    the sizes (a 38.6 mm block taken for 40 mm: 3.6 % farther, 7 mm low at 0.19 m)."""
+    ray = T_base_camera[:3, :3] @ pose.T_camera_object[:3, 3]
+    position = T_base_camera[:3, 3] + ray
     expected_z = rules.table.z_at(position[:2]) + rules.block_height
-    return not on_table or abs(position[2] - expected_z) <= height_tolerance(pose, T_base_camera, rules)
+    scale = (expected_z - T_base_camera[2, 3]) / ray[2] if ray[2] != 0 else -1.0
+    return float(rules.side_length * scale) if scale > 0 else None
 
 
 def height_tolerance(pose, T_base_camera, rules):
     """How far (m) the estimate ``pose`` may put a block off its height on the table (module docstring)."""
-    if pose.covariance is None:
+    std_z = height_std(pose, T_base_camera)
+    if std_z is None:
         return rules.max_height_error
-    z_base = T_base_camera[2, :3]           # base z in camera coordinates: var_z = z^T C z
-    std_z = float(np.sqrt(max(z_base @ pose.covariance[:3, :3] @ z_base, 0.0)))
     return float(np.clip(3.0 * std_z, rules.max_height_error, 2.0 * rules.max_height_error))
+
+
+def height_std(pose, T_base_camera):
+    """The standard deviation (m) of the estimate ``pose`` along base z (its covariance rotated into base), None
+    without a covariance."""
+    if pose.covariance is None:
+        return None
+    z_base = T_base_camera[2, :3]           # base z in camera coordinates: var_z = z^T C z
+    return float(np.sqrt(max(z_base @ pose.covariance[:3, :3] @ z_base, 0.0)))
 
 
 def choose_target(observations, T_base_camera, rules, image_size, T_base_last=None, on_table=True,

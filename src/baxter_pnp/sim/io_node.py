@@ -74,19 +74,29 @@ class IONode:
         self._publish(set(self.board.digital) | set(self.board.analog), header.stamp, aggregates=True)
 
     def _publish(self, names, stamp, aggregates):
+        """Publish the states of components ``names`` (and their navigators), with the aggregates if
+        ``aggregates``; a message is built only for a topic someone subscribes to."""
         board = self.board
+        listened = {kind: aggregates and self._all[kind].get_num_connections() > 0 for kind in self._all}
+
+        def wanted(kind, publishers, candidates):       # in board order (the aggregates' order)
+            return [name for name in candidates if listened[kind] or publishers[name].get_num_connections() > 0]
         digital = {name: msg.DigitalIOState(state=int(board.digital[name]), isInputOnly=board.is_input_only(name))
-                   for name in board.digital if name in names}
+                   for name in wanted('digital', self._digital, [n for n in board.digital if n in names])}
         analog = {name: msg.AnalogIOState(timestamp=stamp, value=board.analog[name],
                                           isInputOnly=board.is_input_only(name))
-                  for name in board.analog if name in names}
-        navigators = {name: msg.NavigatorState(**board.navigator(name)) for name in board.navigators_of(names)}
+                  for name in wanted('analog', self._analog, [n for n in board.analog if n in names])}
+        navigators = {name: msg.NavigatorState(**board.navigator(name))
+                      for name in wanted('navigators', self._navigators, board.navigators_of(names))}
         for publishers, messages in ((self._digital, digital), (self._analog, analog),
                                      (self._navigators, navigators)):
             for name, message in messages.items():
-                publishers[name].publish(message)
-        if aggregates:
+                if publishers[name].get_num_connections() > 0:
+                    publishers[name].publish(message)
+        if listened['digital']:
             self._all['digital'].publish(msg.DigitalIOStates(names=list(digital), states=list(digital.values())))
+        if listened['analog']:
             self._all['analog'].publish(msg.AnalogIOStates(names=list(analog), states=list(analog.values())))
+        if listened['navigators']:
             self._all['navigators'].publish(msg.NavigatorStates(names=list(navigators),
                                                                 states=list(navigators.values())))

@@ -37,6 +37,7 @@ import dataclasses
 import math
 import os
 import sys
+import threading
 import xml.etree.ElementTree as ElementTree
 
 import numpy as np
@@ -73,6 +74,7 @@ SIDES = ('left', 'right')
 # Publication rates in simulated Hz (the real robot publishes its state at 100 Hz; robot_state_publisher
 # sends /tf at 50 Hz; ground truth is for tests and benchmarks). The parts have their own.
 RATES_HZ = {'robot_state': 100.0, 'joint_states': 100.0, 'tf': 50.0, 'object_poses': 30.0}
+EDGES_WAIT_S = 1.0      # wall s an IK request in another frame waits for the loop to read the arm's links
 IMAGE_ENCODINGS = ('bgra8', 'bgr8', 'rgb8', 'mono8')
 RNG_STREAMS = {'image_noise': 0, 'frame_faults': 1, 'left_ik_faults': 2, 'right_ik_faults': 3}
 
@@ -99,7 +101,7 @@ class FakeBaxterNode:
         self.robot = RobotEnableState(enabled=enable)
         self._tree = urdf_tree(urdf_text)
         self._moving_joints = [(p, c) for p, c, kind in self._tree if kind != 'fixed']
-        self._tf_edges = {}                          # {child: (parent, T_parent_child)} last published
+        self._tf_edges = {}                          # {child: (parent, T_parent_child)}: /tf and the IK frames
         positions, _, _ = world.joint_state()
         self._joint_positions = dict(zip(world.joint_names(), (float(q) for q in positions)))   # rad, last published
         self.pacer = RealTimePacer(real_time_factor)
@@ -261,15 +263,20 @@ class FakeBaxterNode:
         return {link: np.eye(4) if link == sdk.BASE_FRAME else poses[link] for link in links}
 
     def _publish_tf(self, header):
+        if not self._pub['tf'].get_num_connections():
+            return
+        moving = self._refresh_tf_edges()
+        self._pub['tf'].publish(TFMessage(transforms=[
+            self._transform(header, parent, child, T) for child, (parent, T) in moving.items()]))
+
+    def _refresh_tf_edges(self):
+        """Read the moving joints' transforms from the world into the tf edges (loop thread); returns them."""
         poses = self._link_poses({link for joint in self._moving_joints for link in joint})
         T_parent_child = relative_transforms(np.stack([poses[parent] for parent, _ in self._moving_joints]),
                                              np.stack([poses[child] for _, child in self._moving_joints]))
         moving = {child: (parent, T) for (parent, child), T in zip(self._moving_joints, T_parent_child)}
         self._tf_edges = dict(self._tf_edges, **moving)
-        if not self._pub['tf'].get_num_connections():
-            return
-        self._pub['tf'].publish(TFMessage(transforms=[
-            self._transform(header, parent, child, T) for child, (parent, T) in moving.items()]))
+        return moving
 
     def _publish_tf_static(self):
         """Fixed joints, once, latched (computed from the world's link poses at boot)."""
@@ -281,7 +288,15 @@ class FakeBaxterNode:
             for parent, child, kind in self._tree if kind == 'fixed']))
 
     def _T_base(self, frame):
-        """T_base_frame composed from the last published transforms, or None for an unknown frame."""
+        """T_base_frame composed from the tf edges, or None for an unknown frame. Called from a service thread:
+        unless ``frame`` is ``base``, the loop refreshes the moving joints' edges first (waits up to
+        ``EDGES_WAIT_S``; they are computed only when wanted, as /tf is published only to subscribers)."""
+        if frame != sdk.BASE_FRAME and frame in self._tf_edges:
+            refreshed = threading.Event()
+            self._inbox.append(lambda: (self._refresh_tf_edges(), refreshed.set()))
+            if not refreshed.wait(EDGES_WAIT_S):
+                rospy.logwarn(f'T_base({frame!r}): the loop did not refresh the arm\'s transforms within '
+                              f'{EDGES_WAIT_S:g} s; using the last ones')
         edges = self._tf_edges
         T = np.eye(4)
         while frame != sdk.BASE_FRAME:

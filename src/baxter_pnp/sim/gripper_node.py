@@ -40,9 +40,11 @@ class GripperNode:
             rospy.logwarn(f'{self.topics.command}: {error}')
 
     def _publish_gripper_state(self, header):
-        self.protocol.update(self.world.time, self.world.gripper_state(self.side))
         if not self._pub['gripper_state'].get_num_connections():
+            if not (self.protocol.ready and self.world.gripper_at_rest(self.side)):     # else nothing would change
+                self.protocol.update(self.world.time, self.world.gripper_state(self.side))
             return
+        self.protocol.update(self.world.time, self.world.gripper_state(self.side))
         fields = self.protocol.state()
         fields['timestamp'] = header.stamp
         self._pub['gripper_state'].publish(msg.EndEffectorState(**fields))

@@ -304,6 +304,11 @@ class SimWorld(PyBulletClientOwner):
         ``GRIPPER_MAX_FORCE`` and ``velocity_percent`` of ``GRIPPER_MAX_SPEED`` (each clipped to 0..100)."""
         self._grippers[side].command(position_percent, force_percent, velocity_percent)
 
+    def gripper_at_rest(self, side):
+        """True if the ``side`` gripper's state cannot change by itself: open or opening done, fingers stopped, not
+        gripping, its last command older than ``GRIPPER_START_TIME``."""
+        return self._grippers[side].at_rest()
+
     def gripper_state(self, side):
         """dict: position_percent (0 closed .. 100 open), force_percent (measured squeeze), moving, gripping
         (both finger pads on the same block, stopped short of closed), missed (a close ended fully closed
@@ -555,6 +560,10 @@ class _Gripper:
                                                                               physicsClientId=self._world._client)
                     if contact[2] in blocks]
         return [{block for link, block in contacts if link in finger_links} for finger_links in self.contact_links]
+
+    def at_rest(self):
+        return (not self.closing and not self.gripping and abs(self.speed) <= GRIPPER_STILL_SPEED
+                and self._world.time - self.command_time >= GRIPPER_START_TIME)
 
     def state(self):
         opening, _, force = self._opening()

@@ -118,6 +118,46 @@ def test_pbvs_goes_via_the_view_pose_instead_of_passing_the_block_behind_a_finge
     assert via_view > 0
 
 
+def test_pbvs_goes_straight_to_the_view_pose_when_no_step_toward_it_keeps_the_block_in_view(hand_clearance):
+    """The PBVS batch's one failure (seed 21, `down` scene 69): a 31 mm square far to the left, grasped with the
+    gripper turned 89 deg. After the first step the block sits in the image's upper left corner, and any step toward
+    the view pose swings it out or behind a finger: the kept steps were 1.3 mm, 40 times (``not_converged``). Now
+    the step goes straight to the view pose, which sees the block, and the servo reaches the hover pose from
+    there with every pose keeping the block in view."""
+    from baxter_pnp.kinematics import ArmKinematics
+    kinematics = ArmKinematics('left')
+    try:
+        start = kinematics.fk([-0.6305, -1.1974, -0.2306, 1.7062, 0.0951, 1.0729, -0.1059])    # the `down` pose
+        config = pick.PickConfig(side_length=0.03141)
+        T_base_block = block_at(0.75576, 0.52908, -0.02657)
+        approach = pick.plan_approach(T_base_block, start, config, CAMERA, T_GRIPPER_CAMERA,
+                                      lambda T: kinematics.ik(T, seed=None) is not None)
+    finally:
+        kinematics.close()
+    assert approach.rank == 1                           # the second grasp orientation: the gripper turned 89 deg
+    T_hover = pick.hover_pose(T_base_block, config, approach.T_reference)
+    T_view = pick.view_pose(T_base_block, T_hover, T_GRIPPER_CAMERA, CAMERA, config, approach.view_depth)
+    vertices_base = transform_points(T_base_block, config.model.vertices)
+    T, straight = start, 0
+    for _ in range(config.max_steps):
+        if pick.converged(T, T_hover, config):
+            break
+        kept = view.keep_in_view_step(T, T_view, config.step_fraction, vertices_base, CAMERA, T_GRIPPER_CAMERA,
+                                      config.view_margin_px, config.max_step_translation, config.max_step_rotation,
+                                      clearance_px=hand_clearance)
+        T_next, toward = pick.pbvs_target(T, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, hand_clearance,
+                                          approach.view_depth)
+        if T_next is T_view or np.allclose(T_next, T_view):
+            straight += 1
+            free = servo.look_and_move_step(T, T_view, config.step_fraction, config.max_step_translation,
+                                            config.max_step_rotation)
+            assert pose_error(T, kept)[0] < pick.BLOCKED_STEP_FRACTION * pose_error(T, free)[0]   # blocked
+        T = T_next
+        assert view.points_in_view(T @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
+    assert straight == 1
+    assert pick.converged(T, T_hover, config)
+
+
 def test_place_pose_puts_the_block_bottom_at_the_requested_height():
     config = pick.PickConfig()
     T_holding = gripper_down_at(0.7, 0.25, -0.04)

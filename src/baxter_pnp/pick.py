@@ -208,6 +208,9 @@ def converged(T_current, T_goal, config):
     return translation <= config.position_tolerance and rotation <= config.yaw_tolerance
 
 
+BLOCKED_STEP_FRACTION = 0.05     # a PBVS step toward the view pose kept this short by the view is blocked
+
+
 def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gripper_camera, clearance_px=None,
                 view_depth=None, position_std=None):
     """Next gripper pose of the look-and-move PBVS (the thesis's law, with its failures fixed), and the goal
@@ -221,8 +224,10 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     ``PoseEstimate.position_std_m``; None: unknown, trusted) above ``position_tolerance``. The goal is the hover
     pose ``T_base_hover``, unless the straight path there would take the block behind a finger (at the hover pose
     the block sits between the fingers, at the top of the image): then it is :func:`view_pose` (at ``view_depth``,
-    default ``config.view_depth``), from where the path up between the fingers is clear.
-    Returns ``(T_base_gripper_next, T_base_goal)``.
+    default ``config.view_depth``), from where the path up between the fingers is clear. When the block's staying in
+    view leaves less than ``BLOCKED_STEP_FRACTION`` of the step toward the view pose (a block near an image corner
+    that the turn toward the view pose would swing out or behind a finger), the next pose is the view pose itself,
+    which sees the block. Returns ``(T_base_gripper_next, T_base_goal)``.
     """
     vertices_base = transform_points(T_base_block, config.model.vertices)
     T_base_goal = T_base_hover
@@ -235,6 +240,11 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     T_next = view.keep_in_view_step(T_base_gripper, T_base_goal, fraction, vertices_base, camera, T_gripper_camera,
                                      margin_px=config.view_margin_px, max_translation=config.max_step_translation,
                                      max_rotation=config.max_step_rotation, clearance_px=clearance_px)
+    if T_base_goal is not T_base_hover:
+        free_step = servo.look_and_move_step(T_base_gripper, T_base_goal, fraction, config.max_step_translation,
+                                             config.max_step_rotation)
+        if pose_error(T_base_gripper, T_next)[0] < BLOCKED_STEP_FRACTION * pose_error(T_base_gripper, free_step)[0]:
+            return T_base_goal, T_base_goal
     return T_next, T_base_goal
 
 

@@ -224,9 +224,13 @@ class Picker:
             T_next, T_toward = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
                                                 T_gripper_camera, self.eye.hand_clearance(look.frame.camera),
                                                 approach.view_depth, look.target.pose.position_std_m)
-            self.motion.move_to_pose(T_next, 'servo step %d%s' % (step + 1, '' if T_toward is T_goal else
-                                                                   ' (via the view pose: a straight path would pass '
-                                                                   'the block behind a finger)'))
+            if T_toward is T_goal:
+                why = ''
+            elif T_next is T_toward:
+                why = ' (straight to the view pose: no step toward it keeps the block in view)'
+            else:
+                why = ' (via the view pose: a straight path would pass the block behind a finger)'
+            self.motion.move_to_pose(T_next, 'servo step %d%s' % (step + 1, why))
             look = self.look_for_block(after_stamp=rospy.get_time())
         raise TaskFailure('not_converged', 'still %.1f mm from the hover pose after %d steps'
                           % (self.result.final_error_mm_est, c.max_steps))

@@ -16,8 +16,6 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
-HEIGHT_WARNING = 0.003      # m: a final estimate further off its height on the table (and off by 3 stds) is logged
-
 
 class Picker:
     """Picks one block at a time with a connected ``RobotSession``, its ``Motion`` and ``Eye``: ``config`` a
@@ -53,8 +51,7 @@ class Picker:
         for attempt in range(1, c.max_grasp_attempts + 1):
             self.result.grasp_attempts = attempt
             look = self.approach_pbvs() if c.mode == 'pbvs' else self.approach_velocity()
-            error = target.height_error(look.target.pose, look.T_base_camera, self.rules)
-            if abs(error) > max(3 * (target.height_std(look.target.pose, look.T_base_camera) or 0.0), HEIGHT_WARNING):
+            if target.grasp_height_suspect(look.target.pose, look.T_base_camera, self.rules):
                 self.warn_off_height(look.target, look.T_base_camera, 'the grasp goes by the estimate')
             if self.grasp(look.T_base_block):
                 self.result.time_s = self.session.elapsed()
@@ -89,7 +86,7 @@ class Picker:
         """A look that finds the block whole: re-centres on a block cut by the image border and, when it is
         lost, looks from above where it was last seen, or higher (up to ``max_lost`` times in a row). A block
         never seen, or lost that long, is searched for by a survey of the table (once a cycle, ``survey``)."""
-        c, rules = self.config, self.rules
+        c = self.config
         for lost in range(c.max_lost + 1):
             self.session.check_deadline()
             look = self.look(after_stamp)
@@ -97,13 +94,7 @@ class Picker:
                 self.T_base_last_block = look.T_base_block
                 return look
             if look.target is None:
-                for o in look.observations:         # of the right kind, not believed for its height alone
-                    if ((o.detection.shape, o.detection.colour) == (rules.shape, rules.colour)
-                            and target.believable(o, look.T_base_camera, rules, on_table=False)):
-                        tolerance = target.height_tolerance(o.pose, look.T_base_camera, rules)
-                        if abs(target.height_error(o.pose, look.T_base_camera, rules)) > tolerance:
-                            self.warn_off_height(o, look.T_base_camera,
-                                                 'not believed: tolerance %.0f mm' % (1000 * tolerance))
+                self.warn_rejected_for_height(look.observations, look.T_base_camera, 'in view')
             if look.target is not None:
                 rospy.logwarn('pick: block cut by the image border: re-centring on it')
                 T_next = target.recentred(look.T_base_gripper, look.T_base_camera, look.T_base_block,
@@ -127,6 +118,12 @@ class Picker:
         raise TaskFailure('block_lost', 'no whole %s %s in view after %d re-acquisition moves%s'
                           % (c.colour, c.shape, c.max_lost, ' and a survey' if self.surveyed else ''))
 
+    def warn_rejected_for_height(self, observations, T_base_camera, where):
+        """``warn_off_height`` for each of ``observations`` that only its height keeps from being the target."""
+        for o in target.rejected_for_height(observations, T_base_camera, self.rules):
+            self.warn_off_height(o, T_base_camera, '%s, not believed: tolerance %.0f mm'
+                                 % (where, 1000 * target.height_tolerance(o.pose, T_base_camera, self.rules)))
+
     def warn_off_height(self, observation, T_base_camera, why):
         """Log that ``observation``'s estimate is off its height on the table (``why``), with the side length that
         would put it there: a ``side_length`` unlike the real block's moves every estimate along its ray by the
@@ -146,8 +143,10 @@ class Picker:
         c = self.config
         rospy.logwarn('pick: the %s %s is not in view: surveying the table' % (c.colour, c.shape))
         self.surveyed = True
-        found = self.survey.run(lambda observation, T_base_camera: target.believable(
-            observation, T_base_camera, self.rules), look.frame.camera)
+        def believed(observation, T_base_camera):
+            self.warn_rejected_for_height([observation], T_base_camera, 'seen by the survey')
+            return target.believable(observation, T_base_camera, self.rules)
+        found = self.survey.run(believed, look.frame.camera)
         block = found.nearest(look.T_base_gripper[:2, 3], c.shape, c.colour)
         if block is None:
             raise TaskFailure('block_lost', 'no %s %s on the table (survey of %d views, %d other block(s) seen)'

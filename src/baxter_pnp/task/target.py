@@ -21,6 +21,7 @@ from baxter_pnp.models import Plane
 from baxter_pnp.transforms import raised
 
 TRACK_RADIUS = 0.05     # m: an estimate this close to the last one is the same block
+GRASP_HEIGHT_WARNING = 0.003    # m: see grasp_height_suspect
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,22 @@ def height_std(pose, T_base_camera):
         return None
     z_base = T_base_camera[2, :3]           # base z in camera coordinates: var_z = z^T C z
     return float(np.sqrt(max(z_base @ pose.covariance[:3, :3] @ z_base, 0.0)))
+
+
+def rejected_for_height(observations, T_base_camera, rules):
+    """The ``observations`` of the target's shape and colour that only their height on the table keeps from being
+    believable (``believable`` with ``on_table=False`` accepts them, with it not)."""
+    return [o for o in observations
+            if (o.detection.shape, o.detection.colour) == (rules.shape, rules.colour)
+            and believable(o, T_base_camera, rules, on_table=False)
+            and abs(height_error(o.pose, T_base_camera, rules)) > height_tolerance(o.pose, T_base_camera, rules)]
+
+
+def grasp_height_suspect(pose, T_base_camera, rules):
+    """True if the estimate a grasp goes by is off its height on the table by more than ``GRASP_HEIGHT_WARNING``
+    and three of its own stds along z (believed, yet unlikely from noise: a wrong ``side_length``?)."""
+    std_z = height_std(pose, T_base_camera) or 0.0
+    return abs(height_error(pose, T_base_camera, rules)) > max(3.0 * std_z, GRASP_HEIGHT_WARNING)
 
 
 def choose_target(observations, T_base_camera, rules, image_size, T_base_last=None, on_table=True,

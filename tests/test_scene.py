@@ -220,7 +220,7 @@ BOARD_INVALID = [
     (('objects', 2, 'side'), -0.03, 'objects[2].side: must be a positive number'),       # the block after it
     (('objects', 2, 'xy'), [0.71, 0.26], 'objects[2].xy: the block overlaps objects[0] on the table'),
     (('objects', 2, 'shape'), 'chess', "objects[2].shape: must be one of ['triangle', 'square', 'pentagon', "
-                                       "'hexagon'] or 'chessboard'"),
+                                       "'hexagon'], 'chessboard', 'tape' or 'cup'"),
 ]
 
 
@@ -232,9 +232,10 @@ def test_invalid_board_names_its_place_in_the_objects_list(path, value, message)
     assert str(error.value).startswith(message)
 
 
-def test_boards_go_in_objects_only():
-    with pytest.raises(SceneError, match="^boards: unknown key: chessboards go in 'objects'"):
-        Scene.from_dict({'boards': [BOARD]})
+def test_boards_and_props_go_in_objects_only():
+    for key in ('boards', 'props'):
+        with pytest.raises(SceneError, match=f"^{key}: unknown key: chessboards, tape and cups go in 'objects'"):
+            Scene.from_dict({key: [BOARD]})
 
 
 def test_board_frame_is_opencvs_object_frame_on_the_printed_top():

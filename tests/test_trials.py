@@ -1,5 +1,6 @@
 """Batch-trials runner (baxter_pnp.bench: trials, trial_scenes, ground_truth, soak): random scenes,
 ground-truth scoring, summary, the soak's pure parts; one real trial and a two-cycle soak."""
+import collections
 import json
 import math
 import os
@@ -269,6 +270,40 @@ def test_appearance_option_puts_a_look_per_seed_into_the_scene_and_the_records(t
     trials.report(again, str(tmp_path), 'test')
     with open(tmp_path / 'summary.json') as f:
         assert json.load(f)['looks'] == {'down 0': rows[0]['appearance_look'], 'down 1': rows[1]['appearance_look']}
+
+
+def test_random_looks_bring_random_clutter_kept_off_the_blocks_and_the_targets_approach():
+    """``--appearance random`` scenes also hold clutter (chessboards, tape of any block colour, black and white cubes,
+    cups), drawn from the trial's own stream: the same seed gives the same blocks as without it; clutter keeps
+    ``CLUTTER_MARGIN`` from the blocks, cups ``CUP_CLEARANCE`` from the target; the rows count it apart from the
+    distractors."""
+    shapes, cups = collections.Counter(), 0
+    for seed in range(30):
+        plain = trial_scenes.random_scene(np.random.default_rng(seed), 'down', distractors=1,
+                                          same_colour_distractor=True)
+        scene = trial_scenes.random_scene(np.random.default_rng(seed), 'down', distractors=1,
+                                          same_colour_distractor=True,
+                                          clutter_rng=trial_scenes.trial_clutter_rng('random', seed))
+        assert trial_scenes.trial_clutter_rng('baxter', seed) is None
+        assert scene['objects'][:3] == plain['objects']
+        clutter = scene['objects'][3:]
+        conditions = trials.scene_conditions(scene)
+        assert conditions['distractors'] == 2 and conditions['same_colour_distractor']
+        assert conditions['clutter'] == len(clutter)
+        parsed = Scene.from_dict(scene)
+        things = list(parsed.boards) + list(parsed.props) + list(parsed.objects[3:])
+        for thing in things:
+            outline = thing.footprint()
+            for k, block in enumerate(parsed.objects[:3]):
+                gap = np.min(np.linalg.norm(outline - block.xy, axis=1))
+                assert gap > 0.03 + trial_scenes.CLUTTER_MARGIN - 0.01, (seed, thing)
+            if getattr(thing, 'shape', '') == 'cup':
+                cups += 1
+                assert np.linalg.norm(np.subtract(thing.xy, parsed.objects[0].xy)) >= \
+                    thing.radius + trial_scenes.CUP_CLEARANCE
+        shapes.update(entry['shape'] for entry in clutter)
+        shapes.update('black or white cube' for entry in clutter if entry['shape'] == 'square')
+    assert cups >= 5 and shapes['chessboard'] >= 5 and shapes['tape'] >= 10 and shapes['black or white cube'] >= 10
 
 
 # ============================================================================================ soak (pure parts)

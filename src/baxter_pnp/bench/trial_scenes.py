@@ -33,6 +33,11 @@ DISTRACTOR_MIN_DISTANCE = 0.08        # m between block centres (target and dist
 HAND_GREY_LEVEL = 120                 # rendered pixels darker than this are the hand (table ~210, floor ~255)
 APPEARANCES = ('clean', 'baxter', 'random')   # run_trials.py --appearance
 APPEARANCE_STREAM = 1                 # the random look's generator: (trial seed, this), apart from the placements
+CLUTTER_STREAM = 2                    # the random clutter's generator (``--appearance random``): (trial seed, this)
+CLUTTER_GREYS = {'black': (0.04, 0.10), 'white': (0.85, 0.95)}    # grey level ranges of the achromatic cubes
+CUP_COLOURS = {'white': (0.92, 0.92, 0.9), **COLOURS_RGB}
+CLUTTER_MARGIN = 0.05                 # m between clutter and a block's outline (a cup: CUP_CLEARANCE to the target)
+CUP_CLEARANCE = 0.15                  # m from a cup's side to the target's centre: the fingers come down beside it
 
 
 @functools.lru_cache(maxsize=None)
@@ -169,16 +174,17 @@ def scene_dict(objects, start_pose, table, **extra):
 
 
 def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_colour_distractor=False,
-                 margin_px=20.0, table=None, faults=None, appearance=None):
+                 margin_px=20.0, table=None, faults=None, appearance=None, clutter_rng=None):
     """A random scene dict (``sim/scene.py`` schema) with one green square the application can pick.
 
     The target (``objects[0]``): drawn by :func:`draw_placement` (whole top face in view from
     ``start_pose``, pickable). ``distractors`` other blocks (random shape and colour, never a green
     square, same sizes, also in view) stand at least 8 cm from every other block; with
     ``same_colour_distractor`` one more block has the target's colour but another shape (triangle,
-    pentagon or hexagon; the last object). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
+    pentagon or hexagon; the last block). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
     schema), none if None. ``appearance``: the scene's ``appearance:`` value (a preset name or a mapping,
-    ``sim/appearance.py``; see :func:`trial_appearance`), none (clean) if None. ``rng`` is a
+    ``sim/appearance.py``; see :func:`trial_appearance`), none (clean) if None. ``clutter_rng``: a generator
+    to draw :func:`random_clutter` with (after the blocks), none if None. ``rng`` is a
     ``numpy.random.Generator``.
     """
     table = table or Table()
@@ -198,10 +204,72 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     if same_colour_distractor:
         same_colour = [s for s in SHAPES if s != TARGET[0]]
         add(same_colour[rng.integers(len(same_colour))], TARGET[1])
+    if clutter_rng is not None:
+        objects += random_clutter(clutter_rng, start_pose, table, placed)
     extra = {} if faults is None else {'faults': faults}
     if appearance is not None:
         extra['appearance'] = appearance
     return scene_dict(objects, start_pose, table, **extra)
+
+
+def random_clutter(rng, start_pose, table, blocks_xy):
+    """``objects`` entries of random clutter around the blocks at ``blocks_xy`` (the target first; m, base), in or
+    near the view from ``start_pose``: a chessboard (half the time), 0-2 strips of tape of any block colour (the
+    target's too), 0-2 black or white cubes, a cup (half the time, ``CUP_CLEARANCE`` from the target). Everything
+    keeps ``CLUTTER_MARGIN`` from the blocks and from each other; what finds no place in 200 draws is left out.
+    ``rng``: a ``numpy.random.Generator``."""
+    T_base_camera, _, camera, _ = start_view(start_pose)
+    low, high = _view_footprint(T_base_camera, camera, table.top_z)
+    half = np.divide(table.size, 2) - 0.02
+    low = np.maximum(low - 0.1, np.subtract(table.center, half))
+    high = np.minimum(high + 0.1, np.add(table.center, half))
+    taken = [(np.asarray(xy), 0.03) for xy in blocks_xy]             # (centre, radius) of what stands there
+    entries = []
+
+    def place(radius, target_clearance=0.0):
+        inner_low = np.maximum(low, np.subtract(table.center, half) + radius)        # wholly on the table
+        inner_high = np.minimum(high, np.add(table.center, half) - radius)
+        if np.any(inner_low >= inner_high):
+            return None
+        for _ in range(200):
+            xy = rng.uniform(inner_low, inner_high)
+            if all(np.linalg.norm(xy - centre) >= radius + other + CLUTTER_MARGIN for centre, other in taken) and \
+                    np.linalg.norm(xy - blocks_xy[0]) >= radius + target_clearance:
+                taken.append((xy, radius))
+                return [round(float(v), 4) for v in xy]
+        return None
+
+    colours = list(COLOURS_RGB)
+    if rng.random() < 0.5:
+        pattern = [int(rng.integers(4, 7)), int(rng.integers(3, 6))]
+        square = round(float(rng.uniform(0.02, 0.03)), 4)
+        xy = place(0.5 * math.hypot(*((np.add(pattern, 3)) * square)))
+        if xy is not None:
+            entries.append({'shape': 'chessboard', 'pattern': pattern, 'square': square, 'xy': xy,
+                            'yaw': round(float(rng.uniform(-math.pi, math.pi)), 4)})
+    for _ in range(int(rng.integers(0, 3))):
+        length, width = round(float(rng.uniform(0.06, 0.15)), 4), round(float(rng.uniform(0.012, 0.025)), 4)
+        xy = place(length / 2)
+        if xy is not None:
+            entries.append({'shape': 'tape', 'xy': xy, 'length': length, 'width': width,
+                            'color': list(COLOURS_RGB[colours[rng.integers(len(colours))]]),
+                            'yaw': round(float(rng.uniform(-math.pi, math.pi)), 4)})
+    for _ in range(int(rng.integers(0, 3))):
+        side = round(float(rng.uniform(0.025, 0.045)), 4)
+        grey = round(float(rng.uniform(*CLUTTER_GREYS[('black', 'white')[rng.integers(2)]])), 3)
+        xy = place(side / math.sqrt(2))
+        if xy is not None:
+            entries.append({'shape': 'square', 'side': side, 'height': side, 'color': [grey] * 3, 'xy': xy,
+                            'yaw': round(float(rng.uniform(-math.pi, math.pi)), 4)})
+    if rng.random() < 0.5:
+        radius = round(float(rng.uniform(0.03, 0.045)), 4)
+        xy = place(radius, CUP_CLEARANCE)
+        if xy is not None:
+            names = list(CUP_COLOURS)
+            entries.append({'shape': 'cup', 'xy': xy, 'radius': radius,
+                            'height': round(float(rng.uniform(0.08, 0.11)), 4),
+                            'color': list(CUP_COLOURS[names[rng.integers(len(names))]])})
+    return entries
 
 
 def trial_appearance(choice, seed):
@@ -214,6 +282,12 @@ def trial_appearance(choice, seed):
     if choice == 'random':
         return random_appearance(np.random.default_rng([seed, APPEARANCE_STREAM]))
     return None if choice == 'clean' else choice
+
+
+def trial_clutter_rng(choice, seed):
+    """The generator of a trial's clutter for ``run_trials.py --appearance choice``: its own stream of the trial's
+    ``seed`` for ``random`` (domain randomisation of the scene's clutter too), None (no clutter) otherwise."""
+    return np.random.default_rng([seed, CLUTTER_STREAM]) if choice == 'random' else None
 
 
 def load_faults_mapping(path):

@@ -39,7 +39,8 @@ from baxter_pnp.bench.ground_truth import (LIFT_THRESHOLD, GroundTruthMonitor, b
 from baxter_pnp.bench.records import format_number, percentile, write_rows
 from baxter_pnp.bench.soak import SOAK_PLACE_XY, soak_main
 from baxter_pnp.bench.table_trials import table_trials_main
-from baxter_pnp.bench.trial_scenes import APPEARANCES, load_faults_mapping, random_scene, trial_appearance
+from baxter_pnp.bench.trial_scenes import (APPEARANCES, COLOURS_RGB, load_faults_mapping, random_scene, trial_appearance,
+                                           trial_clutter_rng)
 from baxter_pnp.sim.appearance import describe
 from baxter_pnp.sim.scene import Scene, SceneError
 
@@ -48,7 +49,8 @@ TABLE_TASKS = ('sort', 'stack')     # --task: table_task.py trials (bench/table_
 START_POSES = ('down', 'angled')
 PLACE_TOLERANCE = 0.01          # m: a placed block must end this close to the requested position
 CSV_FIELDS = ('mode', 'start_pose', 'trial', 'seed', 'side_mm', 'yaw_deg', 'x_m', 'y_m', 'distractors',
-              'same_colour_distractor', 'faults', 'appearance', 'appearance_look', 'app_success', 'failure_reason',
+              'same_colour_distractor', 'clutter', 'faults', 'appearance', 'appearance_look', 'app_success',
+              'failure_reason',
               'verified', 'lifted', 'rise_mm', 'centring_mm', 'centring_x_mm', 'centring_y_mm', 'pre_close_offset_mm',
               'place_error_mm', 'time_s', 'steps', 'grasp_attempts', 'final_error_mm_est', 'wall_s', 'returncode',
               'timed_out', 'trial_dir')
@@ -200,13 +202,17 @@ def plot_results(rows, out_dir):
 # ============================================================================================ runs
 
 def scene_conditions(scene):
-    """The row fields a generated scene dict fixes besides its target: distractors (count),
-    same_colour_distractor, faults (``Faults.summary()``), appearance (``clean``, ``baxter``, or ``random`` for
-    a mapping) and appearance_look (a mapping's ``sim.appearance.describe`` label, None for a preset)."""
+    """The row fields a generated scene dict fixes besides its target: distractors (count of the other blocks of
+    a block colour), same_colour_distractor, clutter (count of the chessboards, tape, cups and black or white
+    cubes), faults (``Faults.summary()``), appearance (``clean``, ``baxter``, or ``random`` for a mapping) and
+    appearance_look (a mapping's ``sim.appearance.describe`` label, None for a preset)."""
     target, look = scene['objects'][0], scene.get('appearance', 'clean')
-    return {'distractors': len(scene['objects']) - 1,
+    colours = [list(rgb) for rgb in COLOURS_RGB.values()]
+    others = scene['objects'][1:]
+    blocks = [o for o in others if o['shape'] not in ('chessboard', 'tape', 'cup') and list(o['color']) in colours]
+    return {'distractors': len(blocks), 'clutter': len(others) - len(blocks),
             'same_colour_distractor': any(o['color'] == target['color'] and o['shape'] != target['shape']
-                                          for o in scene['objects'][1:]),
+                                          for o in blocks),
             'faults': Scene.from_dict(scene).faults.summary(),
             'appearance': 'random' if isinstance(look, dict) else look,
             'appearance_look': describe(look) if isinstance(look, dict) else None}
@@ -290,6 +296,7 @@ def run_trial(master, scene, mode, start_pose, step_fraction, workdir, timeout=3
 
 
 FIELD_TYPES = {'trial': int, 'seed': int, 'steps': int, 'grasp_attempts': int, 'returncode': int, 'distractors': int,
+               'clutter': int,
                'mode': str, 'start_pose': str, 'failure_reason': str, 'trial_dir': str, 'faults': str,
                'appearance': str, 'appearance_look': str,
                'same_colour_distractor': 'bool', 'app_success': 'bool', 'verified': 'bool', 'lifted': 'bool',
@@ -405,7 +412,8 @@ def main(argv=None):
             scene_seed = args.seed * 100000 + START_POSES.index(start_pose) * 10000 + trial
             scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors,
                                  same_colour_distractor=args.distractor_same_colour, faults=faults,
-                                 appearance=trial_appearance(args.appearance, scene_seed))
+                                 appearance=trial_appearance(args.appearance, scene_seed),
+                                 clutter_rng=trial_clutter_rng(args.appearance, scene_seed))
             plan += [(start_pose, trial, scene_seed, scene, mode) for mode in modes]
     rows = []
     print(f'{len(plan)} runs ({args.trials} scenes x {len(start_poses)} start poses x {len(modes)} modes, '

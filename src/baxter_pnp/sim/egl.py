@@ -19,6 +19,9 @@ GL_RGBA8, GL_DEPTH_COMPONENT24, GL_RGBA, GL_PACK_ALIGNMENT = 0x8058, 0x81A6, 0x1
 _GL_VERTEX_SHADER, _GL_FRAGMENT_SHADER, _GL_COMPILE_STATUS, _GL_LINK_STATUS = 0x8B31, 0x8B30, 0x8B81, 0x8B82
 _GL_RENDERER, GL_TEXTURE_MAG_FILTER, GL_TEXTURE_MIN_FILTER = 0x1F01, 0x2800, 0x2801
 GL_TEXTURE_2D, GL_RGB, GL_RGB8, GL_UNPACK_ALIGNMENT, GL_NEAREST = 0x0DE1, 0x1907, 0x8051, 0x0CF5, 0x2600
+GL_TEXTURE0, GL_DEPTH_COMPONENT, GL_LINEAR, GL_NONE, GL_LEQUAL = 0x84C0, 0x1902, 0x2601, 0, 0x0203
+GL_TEXTURE_COMPARE_MODE, GL_TEXTURE_COMPARE_FUNC, GL_COMPARE_REF_TO_TEXTURE = 0x884C, 0x884D, 0x884E
+GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE = 0x2802, 0x2803, 0x812F
 _EGL_PLATFORM_SURFACELESS_MESA, _EGL_PLATFORM_DEVICE_EXT = 0x31DD, 0x313F
 _EGL_OPENGL_API, _EGL_NONE = 0x30A2, 0x3038
 _EGL_CONTEXT_MAJOR_VERSION, _EGL_CONTEXT_MINOR_VERSION = 0x3098, 0x30FB
@@ -50,6 +53,11 @@ _GL_FUNCTIONS = {     # name: (result, argument types)
     'glBindTexture': (None, [_c.c_uint, _c.c_uint]),
     'glTexImage2D': (None, [_c.c_uint] + [_c.c_int] * 5 + [_c.c_uint, _c.c_uint, _c.c_void_p]),
     'glTexParameteri': (None, [_c.c_uint, _c.c_uint, _c.c_int]),
+    'glActiveTexture': (None, [_c.c_uint]),
+    'glFramebufferTexture2D': (None, [_c.c_uint, _c.c_uint, _c.c_uint, _c.c_uint, _c.c_int]),
+    'glDrawBuffer': (None, [_c.c_uint]),
+    'glReadBuffer': (None, [_c.c_uint]),
+    'glUniform1i': (None, [_c.c_int, _c.c_int]),
     'glCreateShader': (_c.c_uint, [_c.c_uint]),
     'glShaderSource': (None, [_c.c_uint, _c.c_int, _c.POINTER(_c.c_char_p), _c.c_void_p]),
     'glCompileShader': (None, [_c.c_uint]),

@@ -11,10 +11,12 @@ the optical frame (x right, y down, z forward) in the world (= Baxter's ``base``
   llvmpipe software rasteriser here, a GPU driver where there is one), ~5 ms of CPU a frame. It reads the
   scene from PyBullet (``getVisualShapeData``: boxes, cylinders, and the meshes its owner passes in)
   and shades it with TinyRenderer's model and ``LIGHT`` (ambient + diffuse + specular, light colour,
-  no shadows, 8-bit arithmetic; textured boxes, e.g. the ``baxter`` look's table, mapped as PyBullet maps
-  a box), so its images are TinyRenderer's but for a few silhouette pixels.
+  8-bit arithmetic; textured boxes, e.g. the ``baxter`` look's table, mapped as PyBullet maps
+  a box), so its images are TinyRenderer's but for a few silhouette pixels. With a ``Light`` whose ``shadows``
+  > 0 it adds soft shadows from a shadow map (``sim.shaders``); TinyRenderer then draws its own (hard, fixed
+  strength) shadows.
 
-``make_renderer('auto' | 'egl' | 'tiny', client, meshes, textures)`` builds one; 'auto' is EGL when it works here,
+``make_renderer('auto' | 'egl' | 'tiny', client, meshes, textures, light)`` builds one; 'auto' is EGL when it works here,
 else TinyRenderer, with one log line saying why. ``BAXTER_PNP_RENDERER`` overrides 'auto'.
 PyBullet's own EGL plugin (``eglRenderer``) was measured too (``baxter_pnp.bench.render_bench``): it does
 not draw meshes given as vertices (the blocks), ignores the ambient/diffuse coefficients, adds a shadow
@@ -24,13 +26,15 @@ import ctypes
 import logging
 import math
 import os
+from dataclasses import dataclass
+from typing import Tuple
 
 import cv2
 import numpy as np
 import pybullet as p
 
 from baxter_pnp.camera import CameraModel
-from baxter_pnp.sim import egl
+from baxter_pnp.sim import egl, shaders
 from baxter_pnp.sim.egl import RendererUnavailable
 from baxter_pnp.transforms import invert
 
@@ -43,17 +47,52 @@ LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightD
 TINY_SHININESS = 2.0                        # TinyRenderer's specular exponent for untextured shapes
 # OpenGL camera (x right, y up, looking along -z) from the optical frame (x right, y down, z forward).
 T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
+SHADOW_MAP_SIZE = 1024                      # texels a side of the shadow map (about 1.6 mm on the default region)
+SHADOW_SPREAD = 1.5                         # texels between the shadow map's four comparison taps
+SHADOW_BIAS = 0.004                         # m: depth a surface must lie behind the nearest one to be in shadow
 
 
+@dataclass(frozen=True)
+class Light:
+    """The scene's directional light: ``direction`` toward the light (base frame, any length); ``shadows``: the
+    share of the direct (diffuse + specular) light a surface in shadow loses, 0 (none, TinyRenderer's look) to 1
+    (ambient light only); shadows are cast by what lies inside ``region`` ((x, y, z) low and high corners, m,
+    base), e.g. the table and the arms above it."""
+    direction: Tuple[float, float, float] = tuple(LIGHT['lightDirection'])
+    shadows: float = 0.0
+    region: Tuple[Tuple[float, float, float], Tuple[float, float, float]] = ((0.2, -0.9, -0.3), (1.3, 0.9, 0.9))
+
+    @property
+    def unit_direction(self):
+        direction = np.asarray(self.direction, float)
+        return direction / np.linalg.norm(direction)
+
+    def clip_from_world(self):
+        """4x4 orthographic projection of ``region`` along the light: x, y and depth in -1..1 (depth -1 nearest
+        the light)."""
+        z_axis = self.unit_direction
+        helper = np.array([1.0, 0.0, 0.0]) if abs(z_axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x_axis = np.cross(helper, z_axis)
+        x_axis /= np.linalg.norm(x_axis)
+        R_light_world = np.array([x_axis, np.cross(z_axis, x_axis), z_axis])
+        low, high = np.asarray(self.region, float)
+        corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1])
+                            for z in (low[2], high[2])]) @ R_light_world.T
+        lo, hi = corners.min(axis=0), corners.max(axis=0)
+        scale = 2.0 / (hi - lo)
+        clip = np.eye(4)
+        clip[:3, :3] = np.diag([scale[0], scale[1], -scale[2]]) @ R_light_world    # depth grows away from the light
+        clip[:3, 3] = [-1.0 - scale[0] * lo[0], -1.0 - scale[1] * lo[1], 1.0 + scale[2] * lo[2]]
+        return clip, 2.0 / scale[2]            # and the depth range (m)
 
 
-def make_renderer(kind, client, meshes=None, textures=None):
+def make_renderer(kind, client, meshes=None, textures=None, light=Light()):
     """A renderer of PyBullet ``client``: ``kind`` 'egl', 'tiny' or 'auto' (EGL if it works, else Tiny; the
     ``BAXTER_PNP_RENDERER`` environment variable, if set, replaces 'auto'). ``meshes``: {body id: (vertices
     (V, 3), normals (V, 3), indices (3T,))} of the bodies whose visual shape is a mesh given as vertices.
     ``textures``: {body id: (H, W, 3) uint8 RGB image} of the box bodies given a texture in PyBullet (the same
     image: PyBullet gives textures back to no one); EGL draws them, TinyRenderer uses PyBullet's own.
-    'egl' raises ``RendererUnavailable`` where it cannot run."""
+    ``light``: the scene's ``Light``. 'egl' raises ``RendererUnavailable`` where it cannot run."""
     if kind not in RENDERERS:
         raise ValueError(f'unknown renderer {kind!r} (expected one of {", ".join(RENDERERS)})')
     if kind == 'auto':
@@ -61,14 +100,14 @@ def make_renderer(kind, client, meshes=None, textures=None):
         if kind not in RENDERERS:
             raise ValueError(f'{RENDERER_ENV}={kind!r}: expected one of {", ".join(RENDERERS)}')
     if kind == 'tiny':
-        return TinyRenderer(client)
+        return TinyRenderer(client, light)
     try:
-        return EglRenderer(client, meshes, textures)
+        return EglRenderer(client, meshes, textures, light)
     except RendererUnavailable as error:
         if kind == 'egl':
             raise
         _log_fallback_once(error)
-        return TinyRenderer(client)
+        return TinyRenderer(client, light)
 
 
 _fallbacks_logged = set()      # reasons already logged by this process
@@ -110,16 +149,25 @@ class TinyRenderer:
     name = 'tiny'
     description = 'PyBullet TinyRenderer'
 
-    def __init__(self, client):
+    def __init__(self, client, light=Light()):
         self._client = client
+        self._light = {**LIGHT, 'lightDirection': list(light.direction), 'shadow': int(light.shadows > 0)}
 
-    def render(self, T_base_camera, camera):
-        """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base)."""
+    def render(self, T_base_camera, camera, riding=None):
+        """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base); with
+        ``riding`` (a set of (body, link)) BGRA, alpha 0 on those parts' pixels and 255 elsewhere."""
         view = T_OPENGL_OPTICAL @ invert(T_base_camera)
-        _, _, rgba, _, _ = p.getCameraImage(
+        flags = p.ER_NO_SEGMENTATION_MASK if riding is None else p.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX
+        _, _, rgba, _, segments = p.getCameraImage(
             camera.width, camera.height, view.T.ravel().tolist(), tiny_projection(camera).T.ravel().tolist(),
-            renderer=p.ER_TINY_RENDERER, flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self._client, **LIGHT)
-        return np.ascontiguousarray(np.reshape(rgba, (camera.height, camera.width, 4))[:, :, 2::-1])
+            renderer=p.ER_TINY_RENDERER, flags=flags, physicsClientId=self._client, **self._light)
+        rgba = np.reshape(rgba, (camera.height, camera.width, 4))
+        if riding is None:
+            return np.ascontiguousarray(rgba[:, :, 2::-1])
+        segments = np.reshape(segments, (camera.height, camera.width)).astype(np.int64)
+        codes = [body + ((link + 1) << 24) for body, link in riding]        # PyBullet's object-and-link code
+        alpha = np.where(np.isin(segments, codes), 0, 255).astype(np.uint8)
+        return np.dstack([rgba[:, :, 2::-1], alpha])
 
     def close(self):
         pass
@@ -132,7 +180,8 @@ class EglRenderer:
     Geometry: TinyRenderer's tessellation of PyBullet's primitives (a box: 12 triangles with face normals;
     a cylinder: the hull of 32 points on each rim, vertex normals pointing from its centre through the
     vertex) and the meshes given to the constructor; each part is drawn in its link frame with the link's
-    pose of the moment. Shading: TinyRenderer's (``_SHADING``) with ``LIGHT``. Measured on the default
+    pose of the moment. Shading: TinyRenderer's (``sim.shaders``) with ``LIGHT`` from ``light.direction``, and
+    with ``light.shadows`` > 0 a shadow map drawn from the light first (``SHADOW_MAP_SIZE``). Measured on the default
     scene: the images equal TinyRenderer's but for a few silhouette pixels of the cylinders
     (tests/test_render.py). The scene is re-read from PyBullet at each render (new bodies, colours).
     A box body given a texture (``textures``) is drawn with it: PyBullet's box texture coordinates (``_BOX_UV``),
@@ -142,8 +191,11 @@ class EglRenderer:
 
     name = 'egl'
 
-    def __init__(self, client, meshes=None, textures=None):
+    def __init__(self, client, meshes=None, textures=None, light=Light()):
         self._client = client
+        self._light = light
+        self._shadow_map = None        # (framebuffer, depth texture) names, with shadows
+        self._shadow_casters = None    # (N, 4, 4) poses of the parts the shadow map was drawn with
         self._meshes = dict(meshes or {})
         self._images = {body: np.ascontiguousarray(image, np.uint8) for body, image in (textures or {}).items()}
         self._textures = {}            # body -> OpenGL texture name, made at the first build
@@ -155,9 +207,13 @@ class EglRenderer:
         self._closed = False
         self._fallback = None          # TinyRenderer, once the scene holds a shape this one cannot draw
         with self._gl.current():
-            self._programs = {shader: self._gl.program(*sources) for shader, sources in _SHADERS.items()}
-            self._uniforms = {shader: {name: self._gl.uniform(program, name) for name in _UNIFORMS}
+            programs = shaders.sources(light.shadows > 0)
+            self._depth_program = self._gl.program(*programs.pop('depth')) if light.shadows > 0 else None
+            self._programs = {shader: self._gl.program(*sources) for shader, sources in programs.items()}
+            self._uniforms = {shader: {name: self._gl.uniform(program, name) for name in shaders.UNIFORMS}
                               for shader, program in self._programs.items()}
+            if self._depth_program is not None:
+                self._depth_clip_uniform = self._gl.uniform(self._depth_program, 'clip_from_link')
             self._sync_scene()
         # Mesa compiles the shaders at the first draw (LLVM; 45 ms idle, seconds on a loaded machine): draw once
         # now, while the fake boots, not at the first camera frame, where the stall would silence every stream.
@@ -168,22 +224,24 @@ class EglRenderer:
         """What draws the frames, e.g. 'OpenGL through EGL (llvmpipe (LLVM 15.0.6, 256 bits))'."""
         return self._fallback.description if self._fallback else f'OpenGL through EGL ({self._gl.description})'
 
-    def render(self, T_base_camera, camera):
-        """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base).
+    def render(self, T_base_camera, camera, riding=None):
+        """uint8 BGR (H, W, 3) image of the pinhole ``camera`` at ``T_base_camera`` (optical frame in base); with
+        ``riding`` (a set of (body, link)) BGRA, alpha 0 on those parts' pixels and 255 elsewhere.
         Once the scene holds a shape this renderer cannot draw, TinyRenderer draws it (logged once)."""
         if self._fallback is None:
             try:
-                return self._render(T_base_camera, camera)
+                return self._render(T_base_camera, camera, riding)
             except RendererUnavailable as error:
                 LOG.warning('camera renderer: switching from EGL to TinyRenderer: %s', error)
-                self._fallback = TinyRenderer(self._client)
-        return self._fallback.render(T_base_camera, camera)
+                self._fallback = TinyRenderer(self._client, self._light)
+        return self._fallback.render(T_base_camera, camera, riding)
 
-    def _render(self, T_base_camera, camera):
+    def _render(self, T_base_camera, camera, riding=None):
         gl = self._gl
         with gl.current():
             self._sync_scene()
             poses = self._link_poses()
+            shadow_from_world = self._draw_shadow_map(poses) if self._depth_program is not None else None
             clip_from_world = optical_projection(camera) @ invert(T_base_camera)
             gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, self._framebuffer(camera.width, camera.height))
             gl.glViewport(0, 0, camera.width, camera.height)
@@ -203,14 +261,20 @@ class EglRenderer:
                         gl.glUniform3f(u['tint'], *part.rgba[:3])
                     T_world_link = poses[part.body, part.link]
                     gl.glUniformMatrix4fv(u['clip_from_link'], 1, 1, _floats(clip_from_world @ T_world_link))
+                    if shadow_from_world is not None:
+                        gl.glUniformMatrix4fv(u['shadow_from_link'], 1, 1,
+                                              _floats(shadow_from_world @ T_world_link))
                     gl.glUniformMatrix3fv(u['world_from_link'], 1, 1, _floats(T_world_link[:3, :3]))
                     # TinyRenderer keeps the colour as 8-bit (255 x rgba, truncated)
                     gl.glUniform3f(u['colour'], *(math.floor(255 * c) for c in part.rgba[:3]))
+                    gl.glUniform1f(u['scene_alpha'], 0.0 if riding and (part.body, part.link) in riding else 1.0)
                     gl.glDrawArrays(egl.GL_TRIANGLES, part.first, part.count)
             rgba = np.empty((camera.height, camera.width, 4), np.uint8)
             gl.glPixelStorei(egl.GL_PACK_ALIGNMENT, 1)
             gl.glReadPixels(0, 0, camera.width, camera.height, egl.GL_RGBA, egl.GL_UNSIGNED_BYTE,
                             rgba.ctypes.data_as(ctypes.c_void_p))
+        if riding is not None:
+            return cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)
         return cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)     # 10x faster than reading GL_BGR from llvmpipe
 
     def close(self):
@@ -225,7 +289,10 @@ class EglRenderer:
                 gl.glDeleteRenderbuffers(2, _uints(colour, depth))
             self._delete_geometry()
             gl.glDeleteTextures(len(self._textures), _uints(*self._textures.values()))
-            for program in self._programs.values():
+            if self._shadow_map is not None:
+                gl.glDeleteFramebuffers(1, _uints(self._shadow_map[0]))
+                gl.glDeleteTextures(1, _uints(self._shadow_map[1]))
+            for program in [*self._programs.values(), *([self._depth_program] if self._depth_program else [])]:
                 gl.glDeleteProgram(program)
         self._framebuffers, self._textures = {}, {}
 
@@ -255,6 +322,7 @@ class EglRenderer:
         if signature != self._signature:
             self._build(shapes)
             self._signature = signature
+            self._shadow_casters = None
         for part, shape in zip(self._parts, shapes):
             part.rgba = shape[6]
 
@@ -340,15 +408,77 @@ class EglRenderer:
                     poses[body, link] = _matrix(state[4], state[5])
         return poses
 
+    def _draw_shadow_map(self, poses):
+        """Draw the depth of every part as the light sees it into the shadow map (bound to texture unit 1 for the
+        shading pass); return shadow_from_world: 4x4, world point -> (texture u, v, depth) in 0..1."""
+        gl = self._gl
+        if self._shadow_map is None:
+            self._shadow_map = self._make_shadow_map()
+        light_clip_from_world, depth_range = self._light.clip_from_world()
+        to_texture = np.diag([0.5, 0.5, 0.5, 1.0])
+        to_texture[:3, 3] = 0.5
+        self._shadow_bias = SHADOW_BIAS / depth_range
+        casters = [(part, poses[part.body, part.link]) for part in self._parts if part.rgba[3] != 0]
+        signature = np.array([T for _, T in casters])
+        if self._shadow_casters is None or self._shadow_casters.shape != signature.shape or \
+                not np.allclose(self._shadow_casters, signature, rtol=0.0, atol=1e-6):
+            self._draw_depth(casters, light_clip_from_world)     # only when something moved (llvmpipe: ~4 ms)
+            self._shadow_casters = signature
+        gl.glActiveTexture(egl.GL_TEXTURE0 + 1)
+        gl.glBindTexture(egl.GL_TEXTURE_2D, self._shadow_map[1])
+        gl.glActiveTexture(egl.GL_TEXTURE0)
+        return to_texture @ light_clip_from_world
+
+    def _draw_depth(self, casters, light_clip_from_world):
+        """Draw the depth of ``casters`` ([(part, T_world_link)]) as the light sees it into the shadow map."""
+        gl = self._gl
+        gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, self._shadow_map[0])
+        gl.glViewport(0, 0, SHADOW_MAP_SIZE, SHADOW_MAP_SIZE)
+        gl.glClear(egl.GL_DEPTH_BUFFER_BIT)
+        gl.glEnable(egl.GL_DEPTH_TEST)
+        gl.glBindVertexArray(self._vertex_array)
+        gl.glUseProgram(self._depth_program)
+        for part, T_world_link in casters:
+            gl.glUniformMatrix4fv(self._depth_clip_uniform, 1, 1, _floats(light_clip_from_world @ T_world_link))
+            gl.glDrawArrays(egl.GL_TRIANGLES, part.first, part.count)
+
+    def _make_shadow_map(self):
+        """(framebuffer, depth texture) of the shadow map: ``SHADOW_MAP_SIZE`` square, compared with
+        GL_LEQUAL and filtered 2x2 (percentage-closer filtering)."""
+        gl = self._gl
+        texture, framebuffer = gl.gen(gl.glGenTextures), gl.gen(gl.glGenFramebuffers)
+        gl.glBindTexture(egl.GL_TEXTURE_2D, texture)
+        gl.glTexImage2D(egl.GL_TEXTURE_2D, 0, egl.GL_DEPTH_COMPONENT24, SHADOW_MAP_SIZE, SHADOW_MAP_SIZE, 0,
+                        egl.GL_DEPTH_COMPONENT, egl.GL_FLOAT, None)
+        for parameter, value in ((egl.GL_TEXTURE_MIN_FILTER, egl.GL_LINEAR), (egl.GL_TEXTURE_MAG_FILTER, egl.GL_LINEAR),
+                                 (egl.GL_TEXTURE_WRAP_S, egl.GL_CLAMP_TO_EDGE),
+                                 (egl.GL_TEXTURE_WRAP_T, egl.GL_CLAMP_TO_EDGE),
+                                 (egl.GL_TEXTURE_COMPARE_MODE, egl.GL_COMPARE_REF_TO_TEXTURE),
+                                 (egl.GL_TEXTURE_COMPARE_FUNC, egl.GL_LEQUAL)):
+            gl.glTexParameteri(egl.GL_TEXTURE_2D, parameter, value)
+        gl.glBindFramebuffer(egl.GL_FRAMEBUFFER, framebuffer)
+        gl.glFramebufferTexture2D(egl.GL_FRAMEBUFFER, egl.GL_DEPTH_ATTACHMENT, egl.GL_TEXTURE_2D, texture, 0)
+        gl.glDrawBuffer(egl.GL_NONE)
+        gl.glReadBuffer(egl.GL_NONE)
+        status = gl.glCheckFramebufferStatus(egl.GL_FRAMEBUFFER)
+        if status != egl.GL_FRAMEBUFFER_COMPLETE:
+            raise RendererUnavailable(f'OpenGL shadow map framebuffer incomplete (status {status:#x})')
+        return framebuffer, texture
+
     def _set_light(self, u):
         gl = self._gl
-        direction = np.asarray(LIGHT['lightDirection'], float)
-        gl.glUniform3f(u['light_direction'], *(direction / np.linalg.norm(direction)))
+        gl.glUniform3f(u['light_direction'], *self._light.unit_direction)
         gl.glUniform3f(u['light_colour'], *LIGHT['lightColor'])
         gl.glUniform1f(u['ambient'], LIGHT['lightAmbientCoeff'])
         gl.glUniform1f(u['diffuse'], LIGHT['lightDiffuseCoeff'])
         gl.glUniform1f(u['specular'], LIGHT['lightSpecularCoeff'])
         gl.glUniform1f(u['shininess'], TINY_SHININESS)
+        gl.glUniform1i(u['image'], 0)
+        if self._depth_program is not None:
+            gl.glUniform1i(u['shadow_map'], 1)
+            gl.glUniform1f(u['shadow_strength'], self._light.shadows)
+            gl.glUniform1f(u['shadow_bias'], self._shadow_bias)
+            gl.glUniform1f(u['shadow_spread'], SHADOW_SPREAD)
 
     def _framebuffer(self, width, height):
         key = (width, height)
@@ -439,78 +569,3 @@ def _floats(matrix):
 
 def _uints(*names):
     return (ctypes.c_uint * len(names))(*names)
-
-
-# TinyRenderer's fragment shading (PyBullet 3.2, shadows off): 8-bit colour c, unit normal n, light direction l
-# (unit, world); r = reflect(-l, n); value = floor(ambient c + (kd max(n.l, 0) + ks max(r_z, 0)^shininess) c
-# light_colour), at most 255. Per pixel for smooth parts; per triangle (in the vertex shader) for flat ones,
-# whose pixels all have the triangle's normal: the same values, at a fraction of the cost.
-_SHADING = """
-uniform vec3 colour;             // 0..255 (untextured parts)
-uniform vec3 light_direction;    // unit, world
-uniform vec3 light_colour;
-uniform float ambient, diffuse, specular, shininess;
-float lighting(vec3 world_normal) {
-    vec3 n = normalize(world_normal);
-    float n_dot_l = dot(n, light_direction);
-    vec3 reflection = normalize(n * (2.0 * n_dot_l) - light_direction);
-    return diffuse * max(n_dot_l, 0.0) + specular * pow(max(reflection.z, 0.0), shininess);
-}
-vec3 shade(float lit, vec3 colour) {
-    return min(floor(ambient * colour + lit * colour * light_colour), vec3(255.0)) / 255.0;
-}
-"""
-_VERTEX_INPUTS = """#version 330 core
-layout(location = 0) in vec3 position;   // m, link frame
-layout(location = 1) in vec3 normal;     // link frame
-layout(location = 2) in vec2 uv;         // texture coordinates (textured parts)
-uniform mat4 clip_from_link;
-uniform mat3 world_from_link;
-"""
-_SHADERS = {    # name: (vertex shader, fragment shader)
-    'flat': (_VERTEX_INPUTS + _SHADING + """
-flat out vec3 shaded;
-void main() {
-    gl_Position = clip_from_link * vec4(position, 1.0);
-    shaded = shade(lighting(world_from_link * normal), colour);
-}
-""", """#version 330 core
-flat in vec3 shaded;
-out vec4 fragment;
-void main() { fragment = vec4(shaded, 1.0); }
-"""),
-    'smooth': (_VERTEX_INPUTS + """
-out vec3 world_normal;
-void main() {
-    gl_Position = clip_from_link * vec4(position, 1.0);
-    world_normal = world_from_link * normal;
-}
-""", """#version 330 core
-in vec3 world_normal;
-out vec4 fragment;
-""" + _SHADING + """
-void main() { fragment = vec4(shade(lighting(world_normal), colour), 1.0); }
-"""),
-    # TinyRenderer: the texel (nearest, 8-bit) x rgba, truncated, then shaded; the light per (flat) box triangle
-    'textured': (_VERTEX_INPUTS + _SHADING + """
-flat out float lit;
-out vec2 texture_uv;
-void main() {
-    gl_Position = clip_from_link * vec4(position, 1.0);
-    lit = lighting(world_from_link * normal);
-    texture_uv = uv;
-}
-""", """#version 330 core
-flat in float lit;
-in vec2 texture_uv;
-uniform sampler2D image;
-uniform vec3 tint;               // rgba of the shape, 0..1
-out vec4 fragment;
-""" + _SHADING + """
-void main() {
-    fragment = vec4(shade(lit, floor(round(texture(image, texture_uv).rgb * 255.0) * tint)), 1.0);
-}
-"""),
-}
-_UNIFORMS = ('clip_from_link', 'world_from_link', 'colour', 'light_direction', 'light_colour', 'ambient', 'diffuse',
-             'specular', 'shininess', 'tint')

@@ -6,6 +6,8 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
     objects:
       - {shape: square, side: 0.04, height: 0.02, color: [0.1, 0.7, 0.1], xy: [0.70, 0.25], yaw: 0.4}
       - {shape: chessboard, pattern: [9, 6], square: 0.025, xy: [0.53, 0.25], yaw: -1.5}
+      - {shape: tape, xy: [0.60, 0.05], length: 0.12, width: 0.019, color: [0.8, 0.1, 0.1], yaw: 0.3}
+      - {shape: cup, xy: [0.85, 0.40], radius: 0.04, height: 0.095, color: [0.9, 0.9, 0.88]}
     start: down      # 'down' | 'angled' | 'neutral' (config/start_poses.yaml) | {left_s0: ..., ..., left_w2: ...}
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
     faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
@@ -16,13 +18,14 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
 ``table``, ``start``, ``camera_error``, ``faults``, ``respawn``, ``appearance`` and ``supersampling`` (and each of
 their keys, except ``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the
 defaults; no faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required
-(a chessboard's ``pattern``, ``square`` and ``xy``; its ``yaw``, ``border`` and ``thickness`` are optional), and
-blocks may not overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
+(a chessboard's ``pattern``, ``square`` and ``xy``; its ``yaw``, ``border`` and ``thickness`` are optional; a
+tape's or cup's ``shape`` and ``xy``, the rest optional), and neither blocks nor cups may overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
 ``params``: each dataclass below from its mapping, then its ``validate``).
 
-``objects`` entries with ``shape: chessboard`` are printed boards lying on the table (``Chessboard``), not blocks:
-``Scene.from_dict`` puts them in ``Scene.boards`` and the blocks, in their order, in ``Scene.objects``. **Block
-indices count blocks only** (``respawn.object``, ``faults.nudge.object``, ``SimWorld.object_poses`` and the
+``objects`` entries with ``shape: chessboard`` are printed boards lying on the table (``Chessboard``), those with
+``shape: tape`` or ``cup`` clutter (``Prop``), not blocks: ``Scene.from_dict`` puts them in ``Scene.boards`` and
+``Scene.props`` and the blocks, in their order, in ``Scene.objects`` (black, white or grey blocks are clutter too:
+no colour class takes them). **Block indices count blocks only** (``respawn.object``, ``faults.nudge.object``, ``SimWorld.object_poses`` and the
 fake's ground-truth topic ``/fake_baxter/object_poses``); error keys name the entry's place in the YAML list.
 """
 import contextlib
@@ -50,6 +53,9 @@ RESPAWN_DELAY = 2.0             # s (simulated): default wait of a respawn (see 
 BOARD_THICKNESS = 0.0005        # m: default thickness of a chessboard (a printed sheet on the table)
 MAX_SUPERSAMPLING = 4           # camera samples a pixel along each axis (the render costs about n^2 times as much)
 START_POSE_NAMES = ('down', 'angled', 'neutral')       # config/start_poses.yaml
+PROP_SHAPES = ('tape', 'cup')   # clutter that is not a block (``Prop``)
+TAPE_THICKNESS = 0.0003         # m: a strip of tape on the table
+CUP_SIDES = 16                  # the polygon a cup's outline is checked as (``Prop.footprint``)
 
 
 class SceneError(ParameterError):
@@ -71,21 +77,21 @@ def _scene_errors(positions=None):
 
 def _yaml_indices(text, positions):
     """``text`` with each ``objects[i]`` / ``boards[i]`` replaced by ``objects[<its index in the YAML list>]``."""
-    return re.sub(r'\b(objects|boards)\[(\d+)\]',
+    return re.sub(r'\b(objects|boards|props)\[(\d+)\]',
                   lambda match: f'objects[{positions[match.group(1)][int(match.group(2))]}]', text)
 
 
-def _split_boards(values):
-    """(``values`` with its ``objects`` list split into ``objects`` (blocks) and ``boards`` (entries with ``shape:
-    chessboard``), positions: {'objects' | 'boards': [index in the YAML list, ...]}); unchanged if ``objects`` is
-    not a list (the parameter check names it)."""
+def _split_entries(values):
+    """(``values`` with its ``objects`` list split into ``objects`` (blocks), ``boards`` (entries with ``shape:
+    chessboard``) and ``props`` (``shape`` in ``PROP_SHAPES``), positions: {'objects' | 'boards' | 'props': [index
+    in the YAML list, ...]}); unchanged if ``objects`` is not a list (the parameter check names it)."""
     entries = values.get('objects', [])
     if not isinstance(entries, list):
         return values, None
-    positions = {'objects': [], 'boards': []}
+    positions = {'objects': [], 'boards': [], 'props': []}
     for i, entry in enumerate(entries):
-        is_board = isinstance(entry, dict) and entry.get('shape') == 'chessboard'
-        positions['boards' if is_board else 'objects'].append(i)
+        shape = entry.get('shape') if isinstance(entry, dict) else None
+        positions['boards' if shape == 'chessboard' else 'props' if shape in PROP_SHAPES else 'objects'].append(i)
     split = {key: [entries[i] for i in indices] for key, indices in positions.items()}
     return {**values, **split}, positions
 
@@ -118,7 +124,7 @@ class SceneObject(Parameters):
 
     def validate(self):
         self.require(self.shape in SHAPES, 'shape',
-                     f"must be one of {sorted(SHAPES, key=SHAPES.get)} or 'chessboard'")
+                     f"must be one of {sorted(SHAPES, key=SHAPES.get)}, 'chessboard', 'tape' or 'cup'")
         self.require_positive('side', 'height')
         self.require(all(0.0 <= c <= 1.0 for c in self.color), 'color', 'RGB components must be in 0..1')
 
@@ -195,6 +201,37 @@ class Chessboard(Parameters):
 
 
 @dataclass(frozen=True)
+class Prop(Parameters):
+    """Clutter on the table that is no block. ``shape: tape``: a strip of tape stuck on the table, ``length`` x
+    ``width`` m, ``TAPE_THICKNESS`` thick, its length along ``yaw`` (rad, from base +x), seen only (nothing
+    touches it; blocks may stand on it); ``shape: cup``: a mug standing open side up, ``radius`` and ``height`` m,
+    fixed to the table (the arm and the blocks hit it), its inside shaded darker. Centred above ``xy`` (m), RGB
+    ``color`` in 0..1."""
+    shape: str
+    xy: Tuple[float, float]
+    color: Tuple[float, float, float] = (0.8, 0.1, 0.1)
+    yaw: float = 0.0
+    length: float = 0.12
+    width: float = 0.019
+    radius: float = 0.04
+    height: float = 0.095
+
+    def validate(self):
+        self.require(self.shape in PROP_SHAPES, 'shape', f'must be one of {list(PROP_SHAPES)}')
+        self.require_positive('length', 'width', 'radius', 'height')
+        self.require(all(0.0 <= c <= 1.0 for c in self.color), 'color', 'RGB components must be in 0..1')
+
+    def footprint(self):
+        """(n, 2) vertices (m, base x-y) of the outline on the table (a cup's as a ``CUP_SIDES``-gon around it)."""
+        if self.shape == 'cup':
+            angles = 2 * np.pi * np.arange(CUP_SIDES) / CUP_SIDES
+            return self.radius / math.cos(np.pi / CUP_SIDES) * np.column_stack([np.cos(angles), np.sin(angles)]) + self.xy
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [self.length / 2, self.width / 2]
+        return outline @ np.array([[c, s], [-s, c]]) + self.xy
+
+
+@dataclass(frozen=True)
 class CameraError(Parameters):
     """The true hand camera minus the published one: mount offset ``xyz`` (m) and ``rpy`` (rad, URDF
     fixed-axis) in the published optical frame, and the ratio ``focal_scale`` of true to published focal lengths."""
@@ -238,7 +275,7 @@ _StartJoints = dataclasses.make_dataclass('_StartJoints', [(name, float) for nam
 @dataclass(frozen=True)
 class Scene(Parameters):
     """A validated scene. ``objects``: the blocks; ``boards``: the chessboards (``objects`` entries with ``shape:
-    chessboard`` in YAML, see ``from_dict``). ``start`` is a start-pose name or a dict of the 7 left-arm joint
+    chessboard`` in YAML, see ``from_dict``); ``props``: tape and cups (``shape: tape | cup``). ``start`` is a start-pose name or a dict of the 7 left-arm joint
     angles (rad); ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None.
     ``validate`` checks what lies between the sections: blocks on the table and apart, boards wholly on the
     table and apart (blocks may stand on them), the respawn poses, the blocks that ``respawn`` and
@@ -246,6 +283,7 @@ class Scene(Parameters):
     table: Table = field(default_factory=Table)
     objects: Tuple[SceneObject, ...] = ()
     boards: Tuple[Chessboard, ...] = ()
+    props: Tuple[Prop, ...] = ()
     start: Union[str, Dict[str, float]] = 'down'
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
@@ -270,6 +308,16 @@ class Scene(Parameters):
             for i in range(j):
                 if _overlap(self.boards[i], board):
                     raise ParameterError(f'boards[{j}].xy', f'the board overlaps boards[{i}] on the table')
+        for j, prop in enumerate(self.props):
+            if not all(self.table.contains(corner) for corner in prop.footprint()):
+                raise ParameterError(f'props[{j}].xy', f'the {prop.shape} does not lie wholly on the table')
+            if prop.shape == 'cup':
+                for i, obj in enumerate(self.objects):
+                    if _overlap(obj, prop):
+                        raise ParameterError(f'props[{j}].xy', f'the cup overlaps objects[{i}] on the table')
+                for i, other in enumerate(self.props[:j]):
+                    if other.shape == 'cup' and _overlap(other, prop):
+                        raise ParameterError(f'props[{j}].xy', f'the cup overlaps props[{i}] on the table')
         if isinstance(self.start, str):
             self.require(self.start in START_POSE_NAMES, 'start',
                          "must be 'down', 'angled', 'neutral' or a map of the 7 left-arm joints")
@@ -298,15 +346,17 @@ class Scene(Parameters):
 
     @classmethod
     def from_dict(cls, values, where=''):
-        """Scene from a dictionary (parsed YAML), its ``objects`` list split into blocks (``objects``) and
-        chessboards (``boards``); ``SceneError`` naming the bad key (``objects[i]``: the i-th entry of the list)."""
+        """Scene from a dictionary (parsed YAML), its ``objects`` list split into blocks (``objects``),
+        chessboards (``boards``) and clutter (``props``); ``SceneError`` naming the bad key (``objects[i]``: the i-th entry of the list)."""
         positions = None
         if isinstance(values, dict):
-            if 'boards' in values:
-                raise SceneError('boards', "unknown key: chessboards go in 'objects', with 'shape: chessboard'")
+            for key in ('boards', 'props'):
+                if key in values:
+                    raise SceneError(key, "unknown key: chessboards, tape and cups go in 'objects', with their "
+                                          "'shape'")
             if 'appearance' in values:
                 values = {**values, 'appearance': appearance.expand(values['appearance'])}
-            values, positions = _split_boards(values)
+            values, positions = _split_entries(values)
         with _scene_errors(positions):
             return super().from_dict(values, where)
 

@@ -39,12 +39,12 @@ import pybullet as p
 from baxter_pnp.camera import CameraModel
 from baxter_pnp.kinematics import (DEFAULT_URDF, NEUTRAL, PyBulletClientOwner, arm_joint_names, body_indices,
                                    link_pose)
-from baxter_pnp.sim import appearance, fastmath
+from baxter_pnp.sim import appearance, fastmath, props
 from baxter_pnp.sim.arm_motion import ARM_MOTOR_FORCE, ArmMotion
 from baxter_pnp.sim.faults import OCCLUDER_THICKNESS
-from baxter_pnp.sim.render import make_renderer
+from baxter_pnp.sim.render import Light, make_renderer
 from baxter_pnp.sim.respawner import Respawner
-from baxter_pnp.transforms import make_transform, to_xyz_quat
+from baxter_pnp.transforms import make_transform
 
 HEAD_MAX_SPEED = 1.5            # rad/s: the head's pan speed at speed ratio 1 (the URDF's limit is no real one)
 FINGER_TRAVEL = 0.020833        # m, per finger, closed (0 %) to open (100 %)
@@ -59,8 +59,8 @@ BLOCK_MARGIN = 0.001            # m, Bullet collision margin of the blocks' conv
 BLOCK_DENSITY = 780.0           # kg/m^3 (wood: a 40 x 40 x 20 mm square weighs 25 g)
 FRICTION = {'table': 0.5, 'block': 0.8}   # finger pads: 1.5 (urdf/baxter.urdf)
 TABLE_THICKNESS = 0.04          # m
-BOARD_COLOR = {'paper': (0.95, 0.95, 0.95), 'ink': (0.05, 0.05, 0.05)}   # chessboard, matte (no specular)
-BOARD_INK_LIFT = 2e-5           # m: the black squares above the white board's top (one depth, no z-fighting)
+BLUR_MAX_FRAME_GAP = 0.25      # s: a camera's last render older than this says nothing of its motion (no blur)
+SHADOW_CASTERS_HEIGHT = 1.2     # m above the table top: what casts shadows on it (the arms and the head over it)
 
 
 class SimWorld(PyBulletClientOwner):
@@ -94,7 +94,9 @@ class SimWorld(PyBulletClientOwner):
         self._blocks = [self._make_block(obj) for obj in scene.objects]
         if scene.faults.occluder is not None:
             self._make_occluder(scene.faults.occluder)
-        board_meshes = dict(self._make_board(board) for board in scene.boards)     # {black squares' body: mesh}
+        board_meshes = dict(props.make_board(self._client, board, scene.table.top_z) for board in scene.boards)
+        for prop in scene.props:
+            props.make_prop(self._client, prop, scene.table.top_z)
         self._nudge_start = None     # (position, orientation) of the nudged block when its push began
         # Fault times count from boot, or (time_origin 'camera_open') from start_fault_clock(): never before.
         self.fault_time_origin = 0.0 if scene.faults.time_origin == 'boot' else math.inf
@@ -104,9 +106,11 @@ class SimWorld(PyBulletClientOwner):
         self._renderer = make_renderer(renderer, self._client, {
             **{body: _prism_mesh(obj.model.vertices[:, :2], obj.model.height)
                for body, obj in zip(self._blocks, scene.objects)},
-            **board_meshes}, textures=self._textures)
+            **board_meshes}, textures=self._textures, light=self._light())
         self._pixel_gains = {}       # (camera size, K) -> appearance.pixel_gain of scene.appearance (H, W, 3)
         self._remap_maps = {}        # (true camera, ideal camera) -> fixed-point cv2.remap maps
+        self._camera_poses = {}      # link -> (time, T_base_camera) of its last render (motion blur)
+        self._riding = {}            # camera link -> {(robot, link index)} that move with it (_riding_parts)
         self._respawner = None if scene.respawn is None else Respawner(self, scene.respawn)
 
     @property
@@ -132,6 +136,15 @@ class SimWorld(PyBulletClientOwner):
         return 0 if self._respawner is None else self._respawner.count
 
     # ------------------------------------------------------------------------------------ building
+    def _light(self):
+        """The renderer's ``Light`` of ``scene.appearance``: shadows cast by what stands over the table, up to
+        ``SHADOW_CASTERS_HEIGHT`` above it (the arms over their workspace)."""
+        look, table = self.scene.appearance, self.scene.table
+        half = np.divide(table.size, 2.0)
+        low = (*(np.subtract(table.center, half) - 0.05), table.top_z - 0.05)
+        high = (*(np.add(table.center, half) + 0.05), table.top_z + SHADOW_CASTERS_HEIGHT)
+        return Light(tuple(look.light_direction), look.shadows, (tuple(map(float, low)), tuple(map(float, high))))
+
     def _make_table(self, table):
         half = [table.size[0] / 2, table.size[1] / 2, TABLE_THICKNESS / 2]
         collision = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self._client)
@@ -181,30 +194,6 @@ class SimWorld(PyBulletClientOwner):
         centre = [*occluder.xy, self.scene.table.top_z + occluder.height + OCCLUDER_THICKNESS / 2]
         return p.createMultiBody(0.0, -1, visual, centre, p.getQuaternionFromEuler([0, 0, occluder.yaw]),
                                  physicsClientId=self._client)
-
-    def _make_board(self, board):
-        """A ``scene.Chessboard``, visual only: a white box of the whole board and one mesh body of its black
-        squares, ``BOARD_INK_LIFT`` above the box in the board frame (``board.T_base_board``). Returns (the
-        black squares' body, its mesh (vertices, normals, indices) for the renderer)."""
-        T_base_board = board.T_base_board(self.scene.table.top_z)
-        _, quaternion = to_xyz_quat(T_base_board)
-        centre = T_base_board @ [*((np.array(board.pattern) - 1) * board.square / 2), board.thickness / 2, 1.0]
-        paper = p.createVisualShape(p.GEOM_BOX, halfExtents=[*np.divide(board.size, 2), board.thickness / 2],
-                                    rgbaColor=[*BOARD_COLOR['paper'], 1.0], specularColor=[0.0, 0.0, 0.0],
-                                    physicsClientId=self._client)
-        p.createMultiBody(0.0, -1, paper, centre[:3].tolist(), list(quaternion), physicsClientId=self._client)
-        squares = board.black_squares()                                   # (K, 4, 2), board frame
-        vertices = np.concatenate([squares, np.full(squares.shape[:2] + (1,), -BOARD_INK_LIFT)], axis=2)
-        vertices = vertices.reshape(-1, 3)
-        normals = np.tile([0.0, 0.0, -1.0], (len(vertices), 1))          # board -z: up, out of the table
-        # two triangles a square, counter-clockwise seen from above the board (from where the normal points)
-        indices = (4 * np.arange(len(squares))[:, None] + [0, 2, 1, 0, 3, 2]).ravel()
-        ink = p.createVisualShape(p.GEOM_MESH, vertices=vertices.tolist(), normals=normals.tolist(),
-                                  indices=indices.tolist(), rgbaColor=[*BOARD_COLOR['ink'], 1.0],
-                                  specularColor=[0.0, 0.0, 0.0], physicsClientId=self._client)
-        body = p.createMultiBody(0.0, -1, ink, T_base_board[:3, 3].tolist(), list(quaternion),
-                                 physicsClientId=self._client)
-        return body, (vertices, normals, indices)
 
     def _place(self, body, height, xy, yaw):
         com = [xy[0], xy[1], self.scene.table.top_z + height / 2]
@@ -429,13 +418,56 @@ class SimWorld(PyBulletClientOwner):
         error = self.scene.camera_error
         ideal, maps = self._true_camera(camera)
         T_base_camera = self.link_pose(link) @ error.T_published_true
+        T_base_camera_before = self._exposure_start_pose(link, T_base_camera)
+        riding = None if T_base_camera_before is None else self._riding_parts(link)
         n = self.scene.supersampling
         if n == 1:
-            bgr = self._renderer.render(T_base_camera, ideal)
+            render = self._renderer.render(T_base_camera, ideal, riding)
         else:          # n x n samples a pixel, averaged: each pixel integrates the light over its area
-            bgr = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height)),
-                             (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
-        return cv2.remap(bgr, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            render = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height),
+                                                      riding), (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
+        image = cv2.remap(render, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if T_base_camera_before is None:
+            return image
+        return appearance.motion_blur(np.ascontiguousarray(image[:, :, :3]), camera, T_base_camera,
+                                      T_base_camera_before, self.scene.table.top_z, image[:, :, 3])
+
+    def _riding_parts(self, link):
+        """{(robot body, link index)} of the links that move with camera ``link``: those joined to its wrist by
+        fixed or prismatic joints only (the hand, the camera, the gripper and its fingers)."""
+        if link not in self._riding:
+            parents, kinds = {}, {}
+            for index in range(p.getNumJoints(self._robot, physicsClientId=self._client)):
+                info = p.getJointInfo(self._robot, index, physicsClientId=self._client)
+                parents[index], kinds[index] = info[16], info[2]
+            root = self._link(link)
+            while kinds.get(root) in (p.JOINT_FIXED, p.JOINT_PRISMATIC) and parents[root] >= 0:
+                root = parents[root]
+
+            def rides(index):
+                while index != root:
+                    if kinds[index] not in (p.JOINT_FIXED, p.JOINT_PRISMATIC):
+                        return False
+                    index = parents[index]
+                    if index < 0:
+                        return False
+                return True
+            self._riding[link] = frozenset((self._robot, index) for index in parents if rides(index))
+        return self._riding[link]
+
+    def _exposure_start_pose(self, link, T_base_camera):
+        """The camera's pose ``scene.appearance.exposure_time`` before now, from its motion since ``link``'s last
+        render (at most ``BLUR_MAX_FRAME_GAP`` s ago; the motion's rate carried back by up to twice that gap); None
+        without an exposure time or a recent render."""
+        exposure_time = self.scene.appearance.exposure_time
+        if exposure_time <= 0:
+            return None
+        last = self._camera_poses.get(link)
+        self._camera_poses[link] = (self.time, T_base_camera)
+        if last is None or not 0 < self.time - last[0] <= BLUR_MAX_FRAME_GAP:
+            return None
+        T_now_last = np.linalg.inv(T_base_camera) @ last[1]
+        return T_base_camera @ appearance.scaled_motion(T_now_last, min(2.0, exposure_time / (self.time - last[0])))
 
     def _ideal_camera(self, true_camera):
         """Pinhole camera (no distortion, the true focal lengths) whose image covers every ray of ``true_camera``."""

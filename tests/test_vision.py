@@ -326,6 +326,31 @@ def test_top_face_under_a_lower_light(camera, config):
         assert vertex_errors(detections[0].vertices_px, truths[0]['vertices_px']).mean() < 0.5, k
 
 
+def _blob_and_hsv(faces, size=(48, 48)):
+    """(outer contour of the union, HSV image) of ``faces``: [(x0, y0, x1, y1) inclusive px, V]; S = 200, H = 60."""
+    hsv = np.zeros(size + (3,), np.uint8)
+    for x0, y0, x1, y1, value in faces:
+        hsv[y0:y1 + 1, x0:x1 + 1] = (60, 200, value)
+    contours, _ = cv2.findContours(np.where(hsv[..., 2] > 0, 255, 0).astype(np.uint8), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea), hsv
+
+
+def test_a_bright_patch_with_blob_around_it_is_no_top_face(config):
+    """A 30 px face (V 120) with a brighter patch (V 170, 12 x 16 px) 2 px in from its left edge: a highlight or glare
+    lying along the face's rim there, 7 px from the rim above and below it, 16 px to the right. The patch is solid and
+    a third of its outline lies within 3.5 px of the rim, but the blob extends beyond it in every direction of any
+    half-turn (7 px or more), which no top face with side faces beside it does: the whole blob is the face. A
+    true split, a 20 px top face (V 170) above an 8 px side face (V 110), still is one: the top face reaches the
+    silhouette on its three free sides."""
+    blob, hsv = _blob_and_hsv([(8, 8, 37, 37, 120), (10, 15, 21, 30, 170)])
+    face = vision.isolate_top_face(blob, hsv, config.top_face)
+    assert cv2.contourArea(face) == cv2.contourArea(blob)
+    blob, hsv = _blob_and_hsv([(10, 10, 29, 29, 170), (10, 30, 29, 37, 110)])
+    face = vision.isolate_top_face(blob, hsv, config.top_face)
+    assert cv2.boundingRect(face) == (10, 10, 20, 20)
+
+
 def test_roi_search_gives_the_full_frame_result(camera, config):
     rng = np.random.default_rng(5)
     blocks = [(synthetic.BlockSpec('square', 0.04, 0.02, GREEN), block_pose(camera, (200, 200), 0.3, 10.0)),

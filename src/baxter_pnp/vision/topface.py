@@ -6,6 +6,12 @@ import numpy as np
 _SQUARE3 = np.ones((3, 3), np.uint8)
 _MIN_RIM_SHARE = 0.3       # a face's outline lies at least this much on the blob's outline ...
 _RIM_DEPTH_PX = 3.5         # ... its rim, this deep (the face's own edge, blurred into the table, lies 1-2 px in)
+_SUPPORT_DIRECTIONS = 32    # _reaches_a_half_turn: directions sampled over the full turn (a multiple of 2) ...
+_DIRECTIONS = np.stack([np.cos(np.arange(_SUPPORT_DIRECTIONS) * 2.0 * np.pi / _SUPPORT_DIRECTIONS),
+                        np.sin(np.arange(_SUPPORT_DIRECTIONS) * 2.0 * np.pi / _SUPPORT_DIRECTIONS)])   # (2, K)
+_HALF_TURNS = (np.arange(_SUPPORT_DIRECTIONS)[:, None]       # ... and the indices of each closed half-turn of them
+               + np.arange(_SUPPORT_DIRECTIONS // 2 + 1)) % _SUPPORT_DIRECTIONS
+_RIM_SHADE_FRACTION = 0.03  # ... beyond _RIM_DEPTH_PX, this fraction of the face's size: its rounded rim's shaded band
 
 
 def isolate_top_face(blob, hsv, config):
@@ -25,9 +31,12 @@ def isolate_top_face(blob, hsv, config):
     as saturated), its holes filled (pips, a printed label). A split is kept only while its face is a
     face: solid (area / convex-hull area at least ``min_solidity``) and part of the blob's outline (at
     least 30 % of its own outline within 3.5 px of the blob's: whatever the view, the top face's edges with no
-    side face below them are silhouette). A specular highlight, white pips or a lighter patch of grain
-    lie inside the face and stop the splitting; the last face kept (or the whole blob, one face: the
-    lighting gradient across a face changes its V by a few per cent, a face edge by tens) is returned.
+    side face below them are silhouette), and reaching the blob's silhouette over a half-turn of directions
+    (``_reaches_a_half_turn``: within 3.5 px plus 3 % of the face's size, the shaded band of a rounded rim).
+    A specular highlight, a glare, white pips, a lighter patch of grain or the flat middle of a face whose
+    rounded rim is shaded lie inside the face and stop the splitting; the last face kept (or the whole blob,
+    one face: the lighting gradient across a face changes its V by a few per cent, a face edge by tens) is
+    returned.
     """
     x, y, w, h = cv2.boundingRect(blob)
     box = (slice(y, y + h), slice(x, x + w))
@@ -38,7 +47,7 @@ def isolate_top_face(blob, hsv, config):
     rim = _within(inside, cv2.DIST_L2, lambda d: d <= _RIM_DEPTH_PX)
     values = value[interior > 0]
     minimum_count = max(config.min_face_fraction * len(values), 1)
-    face = None
+    face = blob_hull = None
     while len(values) >= 2:
         cut, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
         bright = values > cut
@@ -53,10 +62,30 @@ def isolate_top_face(blob, hsv, config):
             break                  # a highlight, pips or a label inside the face, not a face: stop splitting
         contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
         outline = max(contours, key=cv2.contourArea)
-        if cv2.contourArea(outline) < config.min_solidity * cv2.contourArea(cv2.convexHull(outline)):
+        area, hull = cv2.contourArea(outline), cv2.convexHull(outline)
+        if area < config.min_solidity * cv2.contourArea(hull):
             break                  # not a face's shape (a split along shading or marks): keep the previous one
+        blob_hull = cv2.convexHull(blob) if blob_hull is None else blob_hull
+        if not _reaches_a_half_turn(hull, blob_hull, _RIM_DEPTH_PX + _RIM_SHADE_FRACTION * np.sqrt(area)):
+            break                  # blob all around it: a highlight, glare or the shaded rim of the face, not a side
         face, values = outline, bright_values
     return blob if face is None else face
+
+
+def _reaches_a_half_turn(face, blob, depth_px):
+    """True when the contour ``face`` reaches the contour ``blob``'s silhouette, within ``depth_px``, over a
+    half-turn of directions: its support ``h_F(v) = max over its points of p . v`` (px) is within that depth of
+    the blob's, ``h_B(v)``, for every unit ``v`` of some 180 deg arc (``_SUPPORT_DIRECTIONS`` sampled).
+
+    A block's silhouette is the hull of its top face F and its bottom face B (the side faces lie between them);
+    B is F moved by the projected height ``t`` and, farther from the camera, no larger (a homothety ``s F + t``,
+    0 < s <= 1, about a point of F): ``h_B(v) = s h_F(v) + t . v <= h_F(v)`` wherever ``t . v <= 0``, a half-turn
+    at least. So wherever the side faces are, F is silhouette on the other half-turn. A bright patch inside the
+    face (a specular highlight, a glare, the flat part of a face whose rounded rim is shaded) has blob beyond it
+    in every direction.
+    """
+    gap = (blob.reshape(-1, 2) @ _DIRECTIONS).max(axis=0) - (face.reshape(-1, 2) @ _DIRECTIONS).max(axis=0)
+    return bool(gap[_HALF_TURNS].max(axis=1).min() <= depth_px)
 
 
 def _within(inside, metric, keep):

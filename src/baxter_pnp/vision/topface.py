@@ -84,8 +84,15 @@ def _reaches_a_half_turn(face, blob, depth_px):
     face (a specular highlight, a glare, the flat part of a face whose rounded rim is shaded) has blob beyond it
     in every direction.
     """
-    gap = (blob.reshape(-1, 2) @ _DIRECTIONS).max(axis=0) - (face.reshape(-1, 2) @ _DIRECTIONS).max(axis=0)
+    gap = _support(blob) - _support(face)
     return bool(gap[_HALF_TURNS].max(axis=1).min() <= depth_px)
+
+
+def _support(contour):
+    """(K,) support function (px) of the points of ``contour`` (M, 1, 2) along ``_DIRECTIONS`` (element-wise: as a
+    matrix product it goes through BLAS, whose threads can take longer to wake than the product takes)."""
+    points = contour.reshape(-1, 2).astype(np.float64)
+    return (points[:, :1] * _DIRECTIONS[0] + points[:, 1:] * _DIRECTIONS[1]).max(axis=0)
 
 
 def _within(inside, metric, keep):

@@ -44,26 +44,53 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
 
     ``side`` and ``height`` (m) describe the block model; ``shape``/``colour`` restrict the detections
     (None = any). ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
-    Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed).
+    Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed). Where a top face
+    split off its blob gets no pose or is not ``shape``, the whole blob is tried (``vision.blob_detection``): a
+    shadow across the face (the arm's, over the block it approaches) cuts the face as a side face would; a blob
+    that is not ``shape`` or gets no pose either adds nothing of another shape.
     ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
     size = vision.validate_image(image_bgr).shape[:2]
     if size != (camera.height, camera.width):
         raise ValueError(f'observe_blocks: the image is {size[1]}x{size[0]} but the camera model is '
                          f'{camera.width}x{camera.height}: scale or crop the model to the image first')
-    detections = vision.detect(image_bgr, vision_config,
-                               colours=None if colour is None else [colour],
-                               shapes=None if shape is None else [shape])
+    detections = vision.detect(image_bgr, vision_config, colours=None if colour is None else [colour])
     observations = []
     for detection in detections:
+        if shape is not None and detection.shape != shape:
+            observation = _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera,
+                                                  method, table_plane)
+            if observation is not None and observation.pose is not None:
+                observations.append(observation)
+            continue
         model = models.model_for(detection.shape, side, height)
         try:
             estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method,
                                           table_plane=table_plane)
             observations.append(BlockObservation(detection, estimate))
         except pose.PoseEstimationError as exc:
-            observations.append(BlockObservation(detection, None, str(exc)))
+            observation = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height,
+                                                  camera, method, table_plane)
+            if observation is None or observation.pose is None:
+                error = str(exc) + ('' if observation is None else f'; the whole blob: {observation.error}')
+                observation = BlockObservation(detection, None, error)
+            observations.append(observation)
     return observations
+
+
+def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane):
+    """The observation of ``detection``'s whole blob (``vision.blob_detection``) as a ``shape`` block, when the top
+    face split off it got no pose or has another shape (a shadow's edge across the face taken for a side face's):
+    with its pose, or with the pose's error; None when there was no split or the blob is no ``shape``."""
+    whole = vision.blob_detection(image_bgr, detection, vision_config, shape)
+    if whole is None:
+        return None
+    try:
+        model = models.model_for(shape, side, height)
+        return BlockObservation(whole, pose.estimate_pose(whole.vertices_px, camera, model, method=method,
+                                                          table_plane=table_plane))
+    except pose.PoseEstimationError as exc:
+        return BlockObservation(whole, None, str(exc))
 
 
 def annotate(image_bgr, observations, camera, axis_length=0.02):

@@ -16,8 +16,8 @@ the optical frame (x right, y down, z forward) in the world (= Baxter's ``base``
   > 0 it adds soft shadows from a shadow map (``sim.shaders``); TinyRenderer then draws its own (hard, fixed
   strength) shadows.
 
-``make_renderer('auto' | 'egl' | 'tiny', client, meshes, textures, light)`` builds one; 'auto' is EGL when it works here,
-else TinyRenderer, with one log line saying why. ``BAXTER_PNP_RENDERER`` overrides 'auto'.
+``make_renderer('auto' | 'egl' | 'tiny', client, meshes, textures, light)`` builds one; 'auto' is EGL when it works
+here, else TinyRenderer, with one log line saying why. ``BAXTER_PNP_RENDERER`` overrides 'auto'.
 PyBullet's own EGL plugin (``eglRenderer``) was measured too (``baxter_pnp.bench.render_bench``): it does
 not draw meshes given as vertices (the blocks), ignores the ambient/diffuse coefficients, adds a shadow
 pass, and costs 5x as much; see README, "Fake Baxter".

@@ -19,14 +19,16 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
 their keys, except ``respawn.poses``), an object's ``height`` and ``yaw`` are optional (the values above are the
 defaults; no faults and no respawn by default); an object's ``shape``, ``side``, ``color`` and ``xy`` are required
 (a chessboard's ``pattern``, ``square`` and ``xy``; its ``yaw``, ``border`` and ``thickness`` are optional; a
-tape's or cup's ``shape`` and ``xy``, the rest optional), and neither blocks nor cups may overlap. Every problem raises ``SceneError`` whose message starts with the key (checked by
-``params``: each dataclass below from its mapping, then its ``validate``).
+tape's or cup's ``shape`` and ``xy``, the rest optional), and neither blocks nor cups may overlap. Every problem
+raises ``SceneError`` whose message starts with the key (checked by ``params``: each dataclass below from its
+mapping, then its ``validate``).
 
 ``objects`` entries with ``shape: chessboard`` are printed boards lying on the table (``Chessboard``), those with
 ``shape: tape`` or ``cup`` clutter (``Prop``), not blocks: ``Scene.from_dict`` puts them in ``Scene.boards`` and
 ``Scene.props`` and the blocks, in their order, in ``Scene.objects`` (black, white or grey blocks are clutter too:
-no colour class takes them). **Block indices count blocks only** (``respawn.object``, ``faults.nudge.object``, ``SimWorld.object_poses`` and the
-fake's ground-truth topic ``/fake_baxter/object_poses``); error keys name the entry's place in the YAML list.
+no colour class takes them). **Block indices count blocks only** (``respawn.object``, ``faults.nudge.object``,
+``SimWorld.object_poses`` and the fake's ground-truth topic ``/fake_baxter/object_poses``); error keys name the
+entry's place in the YAML list.
 """
 import contextlib
 import dataclasses
@@ -225,7 +227,8 @@ class Prop(Parameters):
         """(n, 2) vertices (m, base x-y) of the outline on the table (a cup's as a ``CUP_SIDES``-gon around it)."""
         if self.shape == 'cup':
             angles = 2 * np.pi * np.arange(CUP_SIDES) / CUP_SIDES
-            return self.radius / math.cos(np.pi / CUP_SIDES) * np.column_stack([np.cos(angles), np.sin(angles)]) + self.xy
+            outline = np.column_stack([np.cos(angles), np.sin(angles)])
+            return self.radius / math.cos(np.pi / CUP_SIDES) * outline + self.xy
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [self.length / 2, self.width / 2]
         return outline @ np.array([[c, s], [-s, c]]) + self.xy
@@ -275,8 +278,8 @@ _StartJoints = dataclasses.make_dataclass('_StartJoints', [(name, float) for nam
 @dataclass(frozen=True)
 class Scene(Parameters):
     """A validated scene. ``objects``: the blocks; ``boards``: the chessboards (``objects`` entries with ``shape:
-    chessboard`` in YAML, see ``from_dict``); ``props``: tape and cups (``shape: tape | cup``). ``start`` is a start-pose name or a dict of the 7 left-arm joint
-    angles (rad); ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None.
+    chessboard`` in YAML, see ``from_dict``); ``props``: tape and cups (``shape: tape | cup``). ``start`` is a
+    start-pose name or a dict of the 7 left-arm joint angles (rad); ``faults`` a ``sim.faults.Faults`` (none by default); ``respawn`` a ``Respawn`` or None.
     ``validate`` checks what lies between the sections: blocks on the table and apart, boards wholly on the
     table and apart (blocks may stand on them), the respawn poses, the blocks that ``respawn`` and
     ``faults.nudge`` name (block indices count blocks only)."""
@@ -347,7 +350,8 @@ class Scene(Parameters):
     @classmethod
     def from_dict(cls, values, where=''):
         """Scene from a dictionary (parsed YAML), its ``objects`` list split into blocks (``objects``),
-        chessboards (``boards``) and clutter (``props``); ``SceneError`` naming the bad key (``objects[i]``: the i-th entry of the list)."""
+        chessboards (``boards``) and clutter (``props``); ``SceneError`` naming the bad key (``objects[i]``: the
+        i-th entry of the list)."""
         positions = None
         if isinstance(values, dict):
             for key in ('boards', 'props'):

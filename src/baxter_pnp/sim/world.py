@@ -424,8 +424,8 @@ class SimWorld(PyBulletClientOwner):
         if n == 1:
             render = self._renderer.render(T_base_camera, ideal, riding)
         else:          # n x n samples a pixel, averaged: each pixel integrates the light over its area
-            render = cv2.resize(self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height),
-                                                      riding), (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
+            large = self._renderer.render(T_base_camera, ideal.scaled(n * ideal.width, n * ideal.height), riding)
+            render = cv2.resize(large, (ideal.width, ideal.height), interpolation=cv2.INTER_AREA)
         image = cv2.remap(render, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if T_base_camera_before is None:
             return image

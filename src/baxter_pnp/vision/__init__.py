@@ -68,7 +68,8 @@ from baxter_pnp.vision.colour import (LAPLACIAN_KERNEL, colour_mask, find_blobs,
                                       lowpass, lowpass_kernel, lowpass_kernel_1d, open_close, oversaturate,
                                       saturation_threshold)
 from baxter_pnp.vision.config import DEFAULT_VISION_YAML, RoiConfig, SubpixelConfig, TopFaceConfig, VisionConfig
-from baxter_pnp.vision.detection import Detection, detect, draw_detections, select_target, validate_image
+from baxter_pnp.vision.detection import (Detection, blob_detection, detect, draw_detections, select_target,
+                                         validate_image)
 from baxter_pnp.vision.polygon import (SHAPE_OF_VERTEX_COUNT, approximate_polygon, classify_shape, fit_polygon_sides,
                                        merge_close_vertices, order_vertices, remove_cut_corners,
                                        remove_flat_vertices)
@@ -76,7 +77,7 @@ from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
 __all__ = ['DEFAULT_VISION_YAML', 'LAPLACIAN_KERNEL', 'SHAPE_OF_VERTEX_COUNT', 'Detection', 'RoiConfig',
-           'SubpixelConfig', 'TopFaceConfig', 'VisionConfig', 'approximate_polygon', 'classify_shape', 'colour_mask',
+           'SubpixelConfig', 'TopFaceConfig', 'blob_detection', 'VisionConfig', 'approximate_polygon', 'classify_shape', 'colour_mask',
            'detect', 'draw_detections', 'find_blobs', 'fit_polygon_sides', 'gamma_lut', 'isolate_top_face',
            'laplacian_sharpen', 'lowpass', 'lowpass_kernel', 'lowpass_kernel_1d', 'merge_close_vertices',
            'open_close', 'order_vertices', 'oversaturate', 'refine_vertices', 'remove_cut_corners',

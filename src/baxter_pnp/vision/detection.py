@@ -2,7 +2,9 @@
 ``colour``, ``topface``, ``polygon`` and ``subpixel`` composed; the search regions; the target's choice; drawing.
 Pixels (u, v) = (column, row) of the raw (distorted) image, origin at the centre of the top-left pixel."""
 import math
+import dataclasses
 from dataclasses import dataclass
+from typing import Optional
 
 import cv2
 import numpy as np
@@ -27,7 +29,9 @@ class Detection:
     ``vertices_px`` (n, 2) ordered by increasing ``atan2(v - vc, u - uc)``; ``centroid_px`` (2,) and
     ``area_px`` (px^2) of that polygon; ``quality`` in 0..1 (1 = clean, convex polygon whose edges fit
     straight lines); ``touches_border``: a vertex within ``border_margin_px`` of the image border;
-    ``contour`` (M, 1, 2) int32: the outline used (the top face), for drawing.
+    ``contour`` (M, 1, 2) int32: the outline used (the top face), for drawing; ``blob_contour``: the whole blob's
+    outline when the top face was split off it (else None), for ``blob_detection`` when the face's polygon has
+    no pose (a shadow's edge across the face taken for a side face's).
     """
     shape: str
     colour: str
@@ -37,6 +41,7 @@ class Detection:
     quality: float
     touches_border: bool
     contour: np.ndarray
+    blob_contour: Optional[np.ndarray] = None
 
 
 def validate_image(image_bgr):
@@ -184,11 +189,25 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
             detection = _polygon_detection(image_bgr, outline, offset, colour, config)
             if detection is None or detection.shape not in shapes:
                 continue
+            if outline is not blob:
+                detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))
             if (config.pipeline == 'chroma'
                     and colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
                 continue
             detections.append(detection)
     return detections
+
+
+def blob_detection(image_bgr, detection, config, shape=None):
+    """The detection of the whole blob ``detection`` was split from (its ``blob_contour``: top face and side faces
+    together, as the thesis's pipeline sees a block), or None when there was no split or the blob is no ``shape``
+    polygon (default: ``detection``'s shape). A fallback for when the top face's polygon gets no pose or has
+    another shape: a shadow across the top face makes its lit part look like the top face and the rest like a
+    side face."""
+    if detection.blob_contour is None:
+        return None
+    whole = _polygon_detection(image_bgr, detection.blob_contour, np.zeros(2, int), detection.colour, config)
+    return whole if whole is not None and whole.shape == (shape or detection.shape) else None
 
 
 def _off_the_border(contour, offset, image_shape):

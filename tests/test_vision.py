@@ -446,3 +446,26 @@ def test_select_target_breaks_ties_by_centrality():
     assert vision.select_target([far, near], 'square', 'green', (640, 480)) is near
     smaller = fake((320, 240), 900.0)
     assert vision.select_target([far, smaller], 'square', 'green', (640, 480)) is far
+
+
+def test_a_close_top_face_brighter_at_one_end_is_still_split_from_its_side_face(config):
+    """A 90 px top face (turned 10 deg) above a 10 px side face 17 grey levels (14 %) darker, both brightening from
+    left to right by 25 levels (vignetting and the light's fall-off across a close block): Otsu's threshold on the
+    raw V cuts the blob along the gradient (the classes then differ by less than ``min_contrast``) and the side face
+    would stay in the polygon; with the gradient taken out the split holds and the face is the top's."""
+    angle = np.radians(10.0)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    top = np.array([[-45, -45], [45, -45], [45, 45], [-45, 45]]) @ rotation.T + [70, 65]
+    side = np.array([top[3], top[2], top[2] + [0, 10], top[3] + [0, 10]])
+    value = np.zeros((140, 140), np.uint8)
+    cv2.fillPoly(value, [np.round(side).astype(np.int32)], 108)
+    cv2.fillPoly(value, [np.round(top).astype(np.int32)], 125)
+    ramp = np.round(np.linspace(-12.5, 12.5, 140)).astype(np.int16)[None, :]
+    value = np.where(value > 0, value + ramp, 0).astype(np.uint8)
+    hsv = np.dstack([np.full_like(value, 60), np.where(value > 0, 200, 0).astype(np.uint8), value])
+    contours, _ = cv2.findContours(np.where(value > 0, 255, 0).astype(np.uint8), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    blob = max(contours, key=cv2.contourArea)
+    face = vision.isolate_top_face(blob, hsv, config.top_face)
+    assert cv2.contourArea(face) == pytest.approx(90 * 90, rel=0.03)
+    assert cv2.pointPolygonTest(face, tuple(map(float, top[2] + [0, 8])), False) < 0     # the side face is out

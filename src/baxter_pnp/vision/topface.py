@@ -12,6 +12,7 @@ _DIRECTIONS = np.stack([np.cos(np.arange(_SUPPORT_DIRECTIONS) * 2.0 * np.pi / _S
 _HALF_TURNS = (np.arange(_SUPPORT_DIRECTIONS)[:, None]       # ... and the indices of each closed half-turn of them
                + np.arange(_SUPPORT_DIRECTIONS // 2 + 1)) % _SUPPORT_DIRECTIONS
 _RIM_SHADE_FRACTION = 0.03  # ... beyond _RIM_DEPTH_PX, this fraction of the face's size: its rounded rim's shaded band
+_GRADIENT_MIN_PIXELS = 2000  # a blob's interior with no split: from this size (45 px across) again without its V ramp
 
 
 def isolate_top_face(blob, hsv, config):
@@ -36,7 +37,9 @@ def isolate_top_face(blob, hsv, config):
     A specular highlight, a glare, white pips, a lighter patch of grain or the flat middle of a face whose
     rounded rim is shaded lie inside the face and stop the splitting; the last face kept (or the whole blob,
     one face: the lighting gradient across a face changes its V by a few per cent, a face edge by tens) is
-    returned.
+    returned. A blob of at least ``_GRADIENT_MIN_PIXELS`` interior pixels where no split holds is tried once more
+    with its V's linear gradient taken out (``_without_gradient``): on a close block vignetting and the light's
+    fall-off change the top face's V as much as a side face lit almost as well differs from it.
     """
     x, y, w, h = cv2.boundingRect(blob)
     box = (slice(y, y + h), slice(x, x + w))
@@ -45,6 +48,17 @@ def isolate_top_face(blob, hsv, config):
     value, saturation = hsv[box][..., 2].copy(), hsv[box][..., 1].copy()
     interior = _within(inside, cv2.DIST_C, lambda d: d >= 3)        # eroded by 2 px
     rim = _within(inside, cv2.DIST_L2, lambda d: d <= _RIM_DEPTH_PX)
+    face = _split_off_sides(blob, value, saturation, inside, interior, rim, (x, y), config)
+    if face is None and cv2.countNonZero(interior) >= _GRADIENT_MIN_PIXELS:
+        face = _split_off_sides(blob, _without_gradient(value, interior), saturation, inside, interior, rim, (x, y),
+                                config)
+    return blob if face is None else face
+
+
+def _split_off_sides(blob, value, saturation, inside, interior, rim, origin, config):
+    """The top face's outline (full-image contour) split off ``blob`` by ``isolate_top_face``'s rules on the crop's
+    V ``value``, or None when no split holds."""
+    x, y = origin
     values = value[interior > 0]
     minimum_count = max(config.min_face_fraction * len(values), 1)
     face = blob_hull = None
@@ -69,7 +83,7 @@ def isolate_top_face(blob, hsv, config):
         if not _reaches_a_half_turn(hull, blob_hull, _RIM_DEPTH_PX + _RIM_SHADE_FRACTION * np.sqrt(area)):
             break                  # blob all around it: a highlight, glare or the shaded rim of the face, not a side
         face, values = outline, bright_values
-    return blob if face is None else face
+    return face
 
 
 def _reaches_a_half_turn(face, blob, depth_px):
@@ -93,6 +107,26 @@ def _support(contour):
     matrix product it goes through BLAS, whose threads can take longer to wake than the product takes)."""
     points = contour.reshape(-1, 2).astype(np.float64)
     return (points[:, :1] * _DIRECTIONS[0] + points[:, 1:] * _DIRECTIONS[1]).max(axis=0)
+
+
+def _without_gradient(value, interior):
+    """``value`` (uint8, the crop's V) less the linear gradient fitted over the ``interior`` pixels (least squares,
+    then twice more without the pixels darker than the fit by more than the residuals' spread: side faces), its
+    mean level kept. Vignetting and the light's fall-off brighten a close block's top face from one side to the
+    other by as much as a side face lit almost as well differs from it (15 % over 100 px): Otsu's threshold then
+    cuts the top face along the gradient, and the side face stays in the polygon."""
+    rows, columns = np.nonzero(interior)
+    samples = value[rows, columns].astype(np.float64)
+    design = np.column_stack([np.ones(len(rows)), columns - columns.mean(), rows - rows.mean()])
+    keep = np.ones(len(rows), bool)
+    for _ in range(3):
+        coefficients, *_ = np.linalg.lstsq(design[keep], samples[keep], rcond=None)
+        residual = samples - design @ coefficients
+        keep = residual > -residual[keep].std()
+    h, w = value.shape
+    trend = (coefficients[1] * (np.arange(w) - columns.mean())[None, :]
+             + coefficients[2] * (np.arange(h) - rows.mean())[:, None])
+    return np.clip(value - trend + 0.5, 0, 255).astype(np.uint8)
 
 
 def _within(inside, metric, keep):

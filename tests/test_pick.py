@@ -148,7 +148,7 @@ def test_pbvs_goes_straight_to_the_view_pose_when_no_step_toward_it_keeps_the_bl
         T_next, toward = pick.pbvs_target(T, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, hand_clearance,
                                           approach.view_depth)
         if T_next is T_view or np.allclose(T_next, T_view):
-            straight += 1
+            straight, T_blocked = straight + 1, T
             free = servo.look_and_move_step(T, T_view, config.step_fraction, config.max_step_translation,
                                             config.max_step_rotation)
             assert pose_error(T, kept)[0] < pick.BLOCKED_STEP_FRACTION * pose_error(T, free)[0]   # blocked
@@ -156,6 +156,12 @@ def test_pbvs_goes_straight_to_the_view_pose_when_no_step_toward_it_keeps_the_bl
         assert view.points_in_view(T @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
     assert straight == 1
     assert pick.converged(T, T_hover, config)
+    # a view pose the arm cannot reach (the random-look batch's seed 11 `angled` 0: ik_failure) is no step: from the
+    # blocked pose the kept step is taken instead, as before the rule
+    T_kept, _ = pick.pbvs_target(T_blocked, T_hover, T_base_block, config, CAMERA, T_GRIPPER_CAMERA, hand_clearance,
+                                 approach.view_depth, reachable=lambda T: not np.allclose(T, T_view))
+    assert not np.allclose(T_kept, T_view)
+    assert view.points_in_view(T_kept @ T_GRIPPER_CAMERA, vertices_base, CAMERA, 0.0, hand_clearance)
 
 
 def test_place_pose_puts_the_block_bottom_at_the_requested_height():

@@ -212,7 +212,7 @@ BLOCKED_STEP_FRACTION = 0.05     # a PBVS step toward the view pose kept this sh
 
 
 def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gripper_camera, clearance_px=None,
-                view_depth=None, position_std=None):
+                view_depth=None, position_std=None, reachable=None):
     """Next gripper pose of the look-and-move PBVS (the thesis's law, with its failures fixed), and the goal
     it steps toward.
 
@@ -227,7 +227,8 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     default ``config.view_depth``), from where the path up between the fingers is clear. When the block's staying in
     view leaves less than ``BLOCKED_STEP_FRACTION`` of the step toward the view pose (a block near an image corner
     that the turn toward the view pose would swing out or behind a finger), the next pose is the view pose itself,
-    which sees the block. Returns ``(T_base_gripper_next, T_base_goal)``.
+    which sees the block, if ``reachable`` (a predicate on a gripper pose; None: any) says the arm gets there.
+    Returns ``(T_base_gripper_next, T_base_goal)``.
     """
     vertices_base = transform_points(T_base_block, config.model.vertices)
     T_base_goal = T_base_hover
@@ -243,7 +244,9 @@ def pbvs_target(T_base_gripper, T_base_hover, T_base_block, config, camera, T_gr
     if T_base_goal is not T_base_hover:
         free_step = servo.look_and_move_step(T_base_gripper, T_base_goal, fraction, config.max_step_translation,
                                              config.max_step_rotation)
-        if pose_error(T_base_gripper, T_next)[0] < BLOCKED_STEP_FRACTION * pose_error(T_base_gripper, free_step)[0]:
+        blocked = pose_error(T_base_gripper, T_next)[0] < BLOCKED_STEP_FRACTION * pose_error(T_base_gripper,
+                                                                                             free_step)[0]
+        if blocked and (reachable is None or reachable(T_base_goal)):
             return T_base_goal, T_base_goal
     return T_next, T_base_goal
 

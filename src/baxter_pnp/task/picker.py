@@ -222,7 +222,8 @@ class Picker:
                 return look
             T_next, T_toward = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, look.frame.camera,
                                                 T_gripper_camera, self.eye.hand_clearance(look.frame.camera),
-                                                approach.view_depth, look.target.pose.position_std_m)
+                                                approach.view_depth, look.target.pose.position_std_m,
+                                                self.reachable)
             if T_toward is T_goal:
                 why = ''
             elif T_next is T_toward:

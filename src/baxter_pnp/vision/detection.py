@@ -1,8 +1,8 @@
 """Detection: a BGR uint8 image in -> the polygons (``Detection``) of the configured colours out, the stages of
 ``colour``, ``topface``, ``polygon`` and ``subpixel`` composed; the search regions; the target's choice; drawing.
 Pixels (u, v) = (column, row) of the raw (distorted) image, origin at the centre of the top-left pixel."""
-import math
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Optional
 

@@ -110,6 +110,29 @@ def test_recentred_puts_the_block_on_the_optical_axis():
     np.testing.assert_allclose(T_next[:3, :3], T_base_gripper[:3, :3])
 
 
+def test_a_block_not_believably_in_view_is_carried_over_to_the_new_camera_pose():
+    """The velocity laws' bridge over a look without the block (a shadow over it): the last estimate, seen from the
+    camera's new pose, projects where the block is; no residual, no covariance, never cut by the border."""
+    camera = load_default_camera().scaled(640, 400)
+    model = pick.PickConfig().model
+    T_base_block = make_transform(Rotation.from_euler('z', 0.3), (0.76, 0.02, TABLE_Z + 0.02))
+    last = observation(0.76, 0.02, touches_border=True)
+    T_base_camera = make_transform(DOWN, (0.74, 0.00, 0.10))
+    carried = target.predicted_target(last, T_base_block, T_base_camera, camera, model)
+    np.testing.assert_allclose(T_base_camera @ carried.pose.T_camera_object, T_base_block, atol=1e-12)
+    vertices_base = (T_base_block @ np.c_[model.vertices, np.ones(4)].T).T
+    expected = camera.project((invert(T_base_camera) @ vertices_base.T).T[:, :3])
+    np.testing.assert_allclose(carried.detection.vertices_px, expected)
+    np.testing.assert_allclose(carried.detection.centroid_px, expected.mean(axis=0))
+    assert (carried.detection.shape, carried.detection.colour) == ('square', 'green')
+    assert carried.pose.method == 'predicted' and carried.pose.residual_px == 0.0
+    assert carried.pose.position_std_m is None and not carried.detection.touches_border
+    assert target.believable(carried, T_base_camera, RULES)
+    assert last.detection.touches_border      # the last observation is left as it was
+    with pytest.raises(ParameterError, match='max_predicted_looks'):
+        pick.PickConfig(max_predicted_looks=-1).validate()
+
+
 def test_search_pose_looks_from_above_the_last_seen_block_when_reachable():
     T_here = make_transform(DOWN, (0.60, 0.05, 0.20))
     T_view = make_transform(DOWN, (0.70, 0.15, 0.10))

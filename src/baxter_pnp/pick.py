@@ -63,6 +63,8 @@ class PickConfig(Parameters):
     view_tolerance_px: float = 8.0          # ... reached when the RMS feature error is below this (px)
     stall_time: float = 3.0                 # IBVS/hybrid: a feature error not down by stall_progress within this
     stall_progress: float = 0.1             # robot time (s) is a stall, followed by one PBVS step (0: never)
+    max_predicted_looks: int = 10           # IBVS/hybrid: looks in a row without the block believably in view that
+                                            # the law goes on through, on its last estimate (0: re-acquire at once)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
     max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
 
@@ -80,6 +82,7 @@ class PickConfig(Parameters):
         require(0.0 <= self.stall_progress < 1.0, 'stall_progress', 'must be in [0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
+        require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),
                 'place_xy', 'must be [x, y] in metres or null')
         require(len(self.gain) == 3 and self.gain[0] >= self.gain[1] > 0, 'gain',

@@ -32,6 +32,7 @@ class Look(NamedTuple):
     observations: List[perception.BlockObservation]
     target: Optional[perception.BlockObservation]
     T_base_block: Optional[np.ndarray]        # the target's pose, None without a target
+    predicted: bool = False                   # the target is the last estimate carried over, not seen in this frame
 
 
 class BlockQuery(NamedTuple):

@@ -202,10 +202,11 @@ class Picker:
                                                    None if std is None else round(1000 * std, 2)))
         self.result.steps = step
         self.result.final_error_mm_est = 1000 * translation
-        rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base%s'
+        rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base%s%s'
                       % (self.config.mode, step, 1000 * translation, np.degrees(rotation), error_px, 1000 * depth,
                          np.round(1000 * look.T_base_block[:3, 3], 1).tolist(),
-                         '' if std is None else ' (+- %.1f mm)' % (1000 * std)))
+                         '' if std is None else ' (+- %.1f mm)' % (1000 * std),
+                         ' (not believably in view: its last estimate)' if look.predicted else ''))
         return translation, rotation
 
     def approach_pbvs(self):
@@ -240,7 +241,9 @@ class Picker:
 
         A stall (the feature error not down by ``stall_progress`` within ``stall_time`` s of robot time: the arm
         crawling along a joint limit or a finger's edge) is followed by a position move (``move_after_stall``),
-        then the velocity law resumes. Returns the look at the hover pose."""
+        then the velocity law resumes. Looks without the block believably in view are bridged by its last estimate
+        (``look_for_velocity_loop``); the view and hover poses are reached only on a look that sees it. Returns the
+        look at the hover pose."""
         c, session = self.config, self.session
         T_gripper_camera, kinematics, limb = session.hand_eye.T_gripper_camera, session.kinematics, session.limb
         gain = pick.make_gain(c)
@@ -250,6 +253,7 @@ class Picker:
         approach = self.approach = self.plan_approach(look)
         at_view = False         # first goal: the view pose (block low in the image); then the hover pose
         stall = pick.StallWatch(c.stall_time, c.stall_progress)
+        predicted = 0           # looks in a row whose target is the last estimate carried over
         for iteration in range(10 * c.max_steps + 1):
             camera = look.frame.camera
             T_hover = pick.hover_pose(look.T_base_block, c, approach.T_reference)
@@ -260,16 +264,19 @@ class Picker:
             twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
                                             vertices_xy, c.model, gain)
             translation, rotation = self.record(iteration, look, T_hover, error * camera.fx)
-            if not at_view and error * camera.fx <= c.view_tolerance_px:
+            seen = not look.predicted
+            if seen and not at_view and error * camera.fx <= c.view_tolerance_px:
                 rospy.loginfo('pick [%s]: view reached (%.1f px): now up between the fingers to the hover pose'
                               % (c.mode, error * camera.fx))
                 at_view = True
                 continue
-            if at_view and error * camera.fx <= c.feature_tolerance_px and translation <= 2 * c.position_tolerance:
+            if (seen and at_view and error * camera.fx <= c.feature_tolerance_px
+                    and translation <= 2 * c.position_tolerance):
                 limb.exit_control_mode()
                 return look
             if stall.stalled(rospy.get_time(), error * camera.fx, at_view):
                 look = self.move_after_stall(look, T_goal, at_view, approach, stall)
+                predicted = 0
                 continue
             twist = pick.view_kept_twist(pick.bounded_twist(twist, c.max_linear_speed, c.max_angular_speed),
                                          look.T_base_camera, look.T_base_block, c, camera,
@@ -281,7 +288,8 @@ class Picker:
                                           upper=kinematics.upper, horizon=robot.COMMAND_TIMEOUT)
             limb.set_joint_velocities(qdot)
             try:
-                look = self.look_for_velocity_loop(look.frame.stamp)
+                look = self.look_for_velocity_loop(look, predicted)
+                predicted = predicted + 1 if look.predicted else 0
             except TaskFailure:
                 limb.exit_control_mode()
                 raise
@@ -327,13 +335,21 @@ class Picker:
                                             1000 * approach.view_depth))
         return approach
 
-    def look_for_velocity_loop(self, after_stamp):
-        """Next look of the velocity loop; on a lost or cut block the arm stops and re-acquires first."""
+    def look_for_velocity_loop(self, previous, predicted):
+        """The velocity loop's look after ``previous`` (a look with a target), ``predicted`` looks in a row having
+        carried the last estimate over. A look without the block believably in view (a shadow or a glare over it,
+        a frame or two) carries it over again (``target.predicted_target``; ``Look.predicted``), up to
+        ``max_predicted_looks`` in a row: the block lies still, the arm's pose comes from its joint angles. Then,
+        or on a block cut by the image border, the arm stops and re-acquires."""
         self.session.check_deadline()
-        look = self.look(after_stamp)
+        look = self.look(previous.frame.stamp)
         if look.target is not None and not look.target.detection.touches_border:
             self.T_base_last_block = look.T_base_block
             return look
+        if look.target is None and predicted < self.config.max_predicted_looks:
+            carried = target.predicted_target(previous.target, self.T_base_last_block, look.T_base_camera,
+                                              look.frame.camera, self.config.model)
+            return look._replace(target=carried, T_base_block=self.T_base_last_block, predicted=True)
         self.session.limb.exit_control_mode()
         return self.look_for_block(after_stamp=rospy.get_time())
 

@@ -11,14 +11,15 @@ the nearer looks shrink its uncertainty, and the tolerance with it), not dropped
 ``place_xy`` count as already placed. Among believable ones the target is the one nearest
 the last estimate (tracking the same block), else the largest / most central (``vision.select_target``).
 """
+import dataclasses
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 
-from baxter_pnp import vision
+from baxter_pnp import perception, pose, vision
 from baxter_pnp.models import Plane
-from baxter_pnp.transforms import raised
+from baxter_pnp.transforms import invert, raised, transform_points
 
 TRACK_RADIUS = 0.05     # m: an estimate this close to the last one is the same block
 GRASP_HEIGHT_WARNING = 0.003    # m: see grasp_height_suspect
@@ -125,6 +126,19 @@ def choose_target(observations, T_base_camera, rules, image_size, T_base_last=No
             return posed[int(np.argmin(distances))]
     chosen = vision.select_target([o.detection for o in posed], rules.shape, rules.colour, image_size)
     return next(o for o in posed if o.detection is chosen)
+
+
+def predicted_target(observation, T_base_block, T_base_camera, camera, model):
+    """``observation`` (the block's last believable ``perception.BlockObservation``) carried to a new camera pose:
+    the block, still at ``T_base_block`` (4x4 in base), seen from ``T_base_camera`` through ``camera`` (a
+    ``CameraModel``): its pose in the camera frame and ``model``'s top-face vertices projected (distorted pixels),
+    the estimate's method ``'predicted'`` and no covariance. What the velocity laws go on with through a look that
+    does not show the block believably (a shadow or a glare over it for a frame or two)."""
+    T_camera_block = invert(T_base_camera) @ T_base_block
+    vertices_px = camera.project(transform_points(T_camera_block, model.vertices))
+    detection = dataclasses.replace(observation.detection, vertices_px=vertices_px,
+                                    centroid_px=vertices_px.mean(axis=0), touches_border=False)
+    return perception.BlockObservation(detection, pose.PoseEstimate(T_camera_block, 0.0, 'predicted'))
 
 
 def recentred(T_base_gripper, T_base_camera, T_base_block, rise):

@@ -160,11 +160,13 @@ def fake_baxter(fake_baxter):
         process.stop()
 
 
-def run_case(ros_master, fake_baxter, floors, tmp_path, faults=None, extra_objects=(), app_args=(), during=None):
-    """Start the fake on the faulty scene, run the app (``during(fake)`` meanwhile, if given), check the tip, hand
-    and camera heights; return (exit code, result dict, log, fake process)."""
+def run_case(ros_master, fake_baxter, floors, tmp_path, faults=None, extra_objects=(), app_args=(), during=None,
+             real_time_factor=0):
+    """Start the fake on the faulty scene (unpaced unless ``real_time_factor``), run the app (``during(fake)``
+    meanwhile, if given), check the tip, hand and camera heights; return (exit code, result dict, log, fake
+    process)."""
     limits, T_tip_body = floors
-    fake = fake_baxter('--real-time-factor', '0', '--scene', scene_with(tmp_path, faults, extra_objects), '--seed', '1')
+    fake = fake_baxter('--real-time-factor', str(real_time_factor), '--scene', scene_with(tmp_path, faults, extra_objects), '--seed', '1')
     monitor = BodyHeightMonitor(T_tip_body)
     result_path = tmp_path / 'result.json'
     args = ['--result-json', result_path, *app_args]
@@ -233,6 +235,20 @@ def test_camera_stall_blackout_and_nudged_block(ros_master, ros_node, fake_baxte
     assert_picked(code, result, log)
     # lifted straight up from where the nudge left it: 2 mm of centring (README 0.2-0.3 mm median) + 1 mm settling
     np.testing.assert_allclose(block_pose()[:2, 3], np.add(default_block()['xy'], offset), atol=0.003)
+
+
+def test_ibvs_goes_on_through_a_short_blackout_with_the_last_estimate(ros_master, ros_node, fake_baxter, floors,
+                                                                      tmp_path):
+    """Eight black frames (0.4 s at 20 fps) in the middle of an IBVS approach: the law goes on with the block's last
+    estimate (``max_predicted_looks`` 10) instead of stopping to re-acquire it, and the block is picked. Paced at
+    real time: unpaced, the application's start-up (wall time) lets a varying stretch of simulated time pass
+    before the approach, and the blackout would fall before it."""
+    faults = {'camera': {'blackout': {'at': 6.0, 'duration': 0.4}}, 'time_origin': 'camera_open'}
+    code, result, log, _ = run_case(ros_master, fake_baxter, floors, tmp_path, faults, app_args=['--mode', 'ibvs'],
+                                    real_time_factor=1)
+    assert_picked(code, result, log)
+    assert len(log_lines(log, '(not believably in view: its last estimate)')) >= 2, log[-3000:]
+    assert not log_lines(log, 'block not in view (re-acquisition'), log[-3000:]
 
 
 def test_missed_then_slipping_grasp_is_retried_on_the_same_block_beside_its_twin(ros_master, ros_node, fake_baxter,

@@ -142,11 +142,15 @@ def test_three_cycles_with_a_late_block_fail_the_second_and_go_on(ros_master, ro
     lifts = lift_times(samples, TABLE_TOP_Z + BLOCK_HEIGHT)
     assert len(lifts) == 2 and starts[0] < lifts[0] < starts[1] and starts[2] < lifts[1], (lifts, starts)
 
-    # Where: placed at PLACE_XY by cycles 1 and 3 (ground truth when cycle 2 starts, and at the end); the placed
-    # block was in view of cycle 2's looks, so its 'no_block' is the place-position rule, not a blind spot.
+    # Where: placed at PLACE_XY by cycles 1 and 3 (ground truth when cycle 2 starts, and when cycle 3's retreat after
+    # the place begins: unpaced, the fake's time races on while the app writes its outputs, and the block's next
+    # respawn may come before the app exits); the placed block was in view of cycle 2's looks, so its 'no_block' is
+    # the place-position rule, not a blind spot.
     T_base_camera, _, camera, _ = trial_scenes.start_view('down')
-    for T_base_block in (sample_at(samples, starts[1]).T_base_block, samples[-1].T_base_block):
+    retreats = [sim for _, sim, _ in log_lines(log, 'pick: retreat: gripper to')]
+    placed_at_end = sample_at(samples, retreats[-1]).T_base_block
+    for T_base_block in (sample_at(samples, starts[1]).T_base_block, placed_at_end):
         np.testing.assert_allclose(T_base_block[:3, 3], [*PLACE_XY, TABLE_TOP_Z + BLOCK_HEIGHT], atol=PLACE_TOLERANCE)
     assert trial_scenes.top_face_in_view(sample_at(samples, waits[0]).T_base_block, model_for('square', 0.04),
                                          T_base_camera, camera, 0.0)
-    assert truth.respawns == 1
+    assert truth.respawns >= 1

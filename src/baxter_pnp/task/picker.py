@@ -276,7 +276,7 @@ class Picker:
                 return look
             if stall.stalled(rospy.get_time(), error * camera.fx, at_view):
                 look = self.move_after_stall(look, T_goal, at_view, approach, stall)
-                predicted = 0
+                approach, predicted = self.approach, 0
                 continue
             twist = pick.view_kept_twist(pick.bounded_twist(twist, c.max_linear_speed, c.max_angular_speed),
                                          look.T_base_camera, look.T_base_block, c, camera,
@@ -300,15 +300,25 @@ class Picker:
     def move_after_stall(self, look, T_goal, at_view, approach, stall):
         """After a stall of the velocity law: a position move straight to the view pose ``T_goal`` (before it is
         reached), else one PBVS step toward ``T_goal`` (``pick.pbvs_target``, the block kept in view), the first
-        with an IK solution from the current angles (none: the law goes on); returns the next look."""
+        with an IK solution from the current angles. Before the view pose is reached and with neither in reach (a
+        far block's view pose at the edge of the arm's reach, the estimate having moved since the plan), the
+        approach is planned again from this look (``self.approach``) and the arm goes to its view pose; nothing in
+        reach: the law goes on. Returns the next look."""
         c = self.config
         self.session.limb.exit_control_mode()
-        camera = look.frame.camera
-        T_step, _ = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, camera,
-                                     self.session.hand_eye.T_gripper_camera, self.eye.hand_clearance(camera),
-                                     approach.view_depth)
+        camera, T_gripper_camera = look.frame.camera, self.session.hand_eye.T_gripper_camera
+        T_step, _ = pick.pbvs_target(look.T_base_gripper, T_goal, look.T_base_block, c, camera, T_gripper_camera,
+                                     self.eye.hand_clearance(camera), approach.view_depth)
         moves = ([] if at_view else [('the view pose', T_goal)]) + [('one PBVS step', T_step)]
         reachable = [(what, T) for what, T in moves if self.reachable(T)]
+        if not reachable and not at_view:
+            replanned = self.plan_approach(look)
+            if replanned.rank >= 0:
+                self.approach = replanned
+                T_hover = pick.hover_pose(look.T_base_block, c, replanned.T_reference)
+                reachable = [('the view pose of the approach planned again',
+                              pick.view_pose(look.T_base_block, T_hover, T_gripper_camera, camera, c,
+                                             replanned.view_depth))]
         rospy.logwarn('pick [%s]: the feature error has not fallen by %.0f %% in %.1f s (stall %d): %s'
                       % (c.mode, 100 * c.stall_progress, c.stall_time, stall.count,
                          reachable[0][0] if reachable else 'no reachable move, the velocity law goes on'))

@@ -12,6 +12,10 @@ import numpy as np
 
 from baxter_pnp import models, pose, vision
 
+# px: a top face split off its blob whose pose leaves a larger RMS residual has its whole blob tried too (the better
+# fit is kept): a shadow's edge across the face cut a corner off it (pick.PickConfig.max_residual_px believes 2 px)
+SPLIT_FACE_MAX_RESIDUAL_PX = 2.0
+
 
 @dataclass
 class BlockObservation:
@@ -45,9 +49,10 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     ``side`` and ``height`` (m) describe the block model; ``shape``/``colour`` restrict the detections
     (None = any). ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
     Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed). Where a top face
-    split off its blob gets no pose or is not ``shape``, the whole blob is tried (``vision.blob_detection``): a
-    shadow across the face (the arm's, over the block it approaches) cuts the face as a side face would; a blob
-    that is not ``shape`` or gets no pose either adds nothing of another shape.
+    split off its blob gets no pose, is not ``shape``, or is posed with a residual above
+    ``SPLIT_FACE_MAX_RESIDUAL_PX``, the whole blob is tried (``vision.blob_detection``; of two poses the one with the
+    smaller residual is kept): a shadow across the face (the arm's, over the block it approaches) cuts the face as a
+    side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape.
     ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
     size = vision.validate_image(image_bgr).shape[:2]
@@ -67,7 +72,6 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
         try:
             estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method,
                                           table_plane=table_plane)
-            observations.append(BlockObservation(detection, estimate))
         except pose.PoseEstimationError as exc:
             observation = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height,
                                                   camera, method, table_plane)
@@ -75,12 +79,20 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
                 error = str(exc) + ('' if observation is None else f'; the whole blob: {observation.error}')
                 observation = BlockObservation(detection, None, error)
             observations.append(observation)
+            continue
+        observation = BlockObservation(detection, estimate)
+        if estimate.residual_px > SPLIT_FACE_MAX_RESIDUAL_PX:
+            whole = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height, camera,
+                                            method, table_plane)
+            if whole is not None and whole.pose is not None and whole.pose.residual_px < estimate.residual_px:
+                observation = whole
+        observations.append(observation)
     return observations
 
 
 def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane):
     """The observation of ``detection``'s whole blob (``vision.blob_detection``) as a ``shape`` block, when the top
-    face split off it got no pose or has another shape (a shadow's edge across the face taken for a side face's):
+    face split off it got no pose, a poor fit or has another shape (a shadow's edge across the face taken for a side face's):
     with its pose, or with the pose's error; None when there was no split or the blob is no ``shape``."""
     whole = vision.blob_detection(image_bgr, detection, vision_config, shape)
     if whole is None:

@@ -47,9 +47,9 @@ LIGHT = dict(lightDirection=[0.4, -0.3, 1.0], lightColor=[1.0, 1.0, 1.0], lightD
 TINY_SHININESS = 2.0                        # TinyRenderer's specular exponent for untextured shapes
 # OpenGL camera (x right, y up, looking along -z) from the optical frame (x right, y down, z forward).
 T_OPENGL_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])
-SHADOW_MAP_SIZE = 1024                      # texels a side of the shadow map (about 1.6 mm on the default region)
-SHADOW_SPREAD = 1.5                         # texels between the shadow map's four comparison taps
-SHADOW_BIAS = 0.004                         # m: depth a surface must lie behind the nearest one to be in shadow
+SHADOW_MAP_SIZE = 256                       # texels a side of the shadow map (about 7 mm on the default region)
+SHADOW_BIAS = 0.004                         # m: depth a surface must lie behind the nearest one to be in shadow,
+                                            # plus the depth a texel spans on the table (a low light)
 
 
 @dataclass(frozen=True)
@@ -417,7 +417,9 @@ class EglRenderer:
         light_clip_from_world, depth_range = self._light.clip_from_world()
         to_texture = np.diag([0.5, 0.5, 0.5, 1.0])
         to_texture[:3, 3] = 0.5
-        self._shadow_bias = SHADOW_BIAS / depth_range
+        texel_m = 2.0 / SHADOW_MAP_SIZE / np.linalg.norm(light_clip_from_world[:2, :3], axis=1).min()
+        sine = self._light.unit_direction[2]                      # of the light's elevation
+        self._shadow_bias = (SHADOW_BIAS + texel_m * math.sqrt(1.0 - sine ** 2) / sine) / depth_range
         casters = [(part, poses[part.body, part.link]) for part in self._parts if part.rgba[3] != 0]
         signature = np.array([T for _, T in casters])
         if self._shadow_casters is None or self._shadow_casters.shape != signature.shape or \
@@ -444,7 +446,7 @@ class EglRenderer:
 
     def _make_shadow_map(self):
         """(framebuffer, depth texture) of the shadow map: ``SHADOW_MAP_SIZE`` square, compared with
-        GL_LEQUAL and filtered 2x2 (percentage-closer filtering)."""
+        GL_LEQUAL and filtered 2x2 (percentage-closer filtering: a shadow's edge is soft over one texel)."""
         gl = self._gl
         texture, framebuffer = gl.gen(gl.glGenTextures), gl.gen(gl.glGenFramebuffers)
         gl.glBindTexture(egl.GL_TEXTURE_2D, texture)
@@ -478,7 +480,6 @@ class EglRenderer:
             gl.glUniform1i(u['shadow_map'], 1)
             gl.glUniform1f(u['shadow_strength'], self._light.shadows)
             gl.glUniform1f(u['shadow_bias'], self._shadow_bias)
-            gl.glUniform1f(u['shadow_spread'], SHADOW_SPREAD)
 
     def _framebuffer(self, width, height):
         key = (width, height)

@@ -8,8 +8,8 @@ pixels all have the triangle's normal: the same values, at a fraction of the cos
 
 With shadows (``sources(shadows=True)``) the direct term (diffuse + specular) is scaled by ``1 - shadow_strength``
 where the light is blocked: a depth map drawn from the light (orthographic, ``shadow_from_link`` maps a link's
-points to its texture coordinates and depth in 0..1) read with OpenGL's 2x2 comparison filter at four points
-``shadow_spread`` texels apart (a soft edge of about 4 texels), so flat parts shade per pixel there.
+points to its texture coordinates and depth in 0..1) read once with OpenGL's 2x2 comparison filter: a soft edge
+one texel wide (``render.SHADOW_MAP_SIZE``), so flat parts shade per pixel there.
 """
 
 _SHADING = """
@@ -32,15 +32,9 @@ _SUNLIT = """
 #ifdef SHADOWS
 in vec3 shadow_position;
 uniform sampler2DShadow shadow_map;
-uniform float shadow_strength, shadow_bias, shadow_spread;   // share of the direct light blocked; depth; texels
+uniform float shadow_strength, shadow_bias;   // share of the direct light blocked; depth (0..1)
 float sunlit() {       // 1 in full light, 1 - shadow_strength in full shadow
-    vec2 step = shadow_spread / vec2(textureSize(shadow_map, 0));
-    float z = shadow_position.z - shadow_bias, seen = 0.0;
-    seen += texture(shadow_map, vec3(shadow_position.xy + vec2(-step.x, -step.y), z));
-    seen += texture(shadow_map, vec3(shadow_position.xy + vec2(step.x, -step.y), z));
-    seen += texture(shadow_map, vec3(shadow_position.xy + vec2(-step.x, step.y), z));
-    seen += texture(shadow_map, vec3(shadow_position.xy + vec2(step.x, step.y), z));
-    return 1.0 - shadow_strength * (1.0 - 0.25 * seen);
+    return 1.0 - shadow_strength * (1.0 - texture(shadow_map, vec3(shadow_position.xy, shadow_position.z - shadow_bias)));
 }
 #else
 float sunlit() { return 1.0; }
@@ -135,7 +129,7 @@ void main() {}
 """)
 UNIFORMS = ('clip_from_link', 'world_from_link', 'colour', 'light_direction', 'light_colour', 'ambient', 'diffuse',
             'specular', 'shininess', 'tint', 'image', 'shadow_from_link', 'shadow_map', 'shadow_strength',
-            'shadow_bias', 'shadow_spread', 'scene_alpha')
+            'shadow_bias', 'scene_alpha')
 
 
 def sources(shadows=False):

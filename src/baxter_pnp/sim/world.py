@@ -429,8 +429,8 @@ class SimWorld(PyBulletClientOwner):
         image = cv2.remap(render, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if T_base_camera_before is None:
             return image
-        return appearance.motion_blur(np.ascontiguousarray(image[:, :, :3]), camera, T_base_camera,
-                                      T_base_camera_before, self.scene.table.top_z, image[:, :, 3])
+        return appearance.motion_blur(cv2.cvtColor(image, cv2.COLOR_BGRA2BGR), camera, T_base_camera,   # 0.1 ms
+                                      T_base_camera_before, self.scene.table.top_z, cv2.extractChannel(image, 3))
 
     def _riding_parts(self, link):
         """{(robot body, link index)} of the links that move with camera ``link``: those joined to its wrist by

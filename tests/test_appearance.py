@@ -19,11 +19,14 @@ CAMERA = sensor_model('left_hand_camera').windowed(sensor_window(640, 400))
 
 
 def test_presets_overrides_and_errors_as_a_scene_key():
-    assert load_scene().appearance == AppearanceConfig()                 # clean by default: the look as it was
     baxter = AppearanceConfig.from_dict(expand('baxter'))
     assert baxter.preset == 'baxter' and baxter.vignetting < 1.0 and baxter.table_texture > 0
+    assert load_scene().appearance == baxter == Scene().appearance              # the real hand camera's look
+    assert AppearanceConfig.from_dict(expand('clean')) == AppearanceConfig()     # the fields' neutral values
     tuned = AppearanceConfig.from_dict(expand({'preset': 'baxter', 'exposure': 0.4}))
     assert tuned.exposure == 0.4 and tuned.vignetting == baxter.vignetting
+    assert AppearanceConfig.from_dict(expand({'exposure': 0.4})) == tuned        # no preset: the default's keys
+    assert AppearanceConfig.from_dict(expand({'preset': 'clean', 'exposure': 0.4})).vignetting == 1.0
     objects = [{'shape': 'square', 'side': 0.04, 'color': [0.1, 0.7, 0.1], 'xy': [0.7, 0.25]}]
     assert Scene.from_dict({'objects': objects, 'appearance': 'baxter'}).appearance == baxter
     for value, key in (('sunny', 'appearance.preset'), ({'exposure': -1.0}, 'appearance.exposure'),

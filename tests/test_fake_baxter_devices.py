@@ -35,8 +35,9 @@ MODES = [(1280, 800), (960, 600), (640, 400), (480, 300), (384, 240), (320, 200)
 
 
 def green_mask(image_bgr):
-    b, g, r = (image_bgr[..., k].astype(int) for k in range(3))
-    return ((g > 90) & (g > r + 50) & (g > b + 50)).astype(np.uint8)
+    """The green block's pixels, by hue and saturation (the default look is dim and vignetted)."""
+    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+    return ((hsv[..., 0] > 45) & (hsv[..., 0] < 75) & (hsv[..., 1] > 120) & (hsv[..., 2] > 40)).astype(np.uint8)
 
 
 # ============================================================================ pure parts (no ROS graph)

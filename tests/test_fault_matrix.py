@@ -375,8 +375,9 @@ def occluder_hiding(block, fraction, height, start_pose='down', table_top_z=TABL
 
 
 def green_top_pixels(scene_dict, start_pose='down'):
-    """Number of lit green pixels (the block's top face) in the fake's render of the first look from ``start_pose``."""
-    world = SimWorld(Scene.from_dict(scene_dict))
+    """Number of lit green pixels (the block's top face) in the fake's render of the first look from ``start_pose``
+    (under the ``clean`` look: the thresholds are for a saturated block in full light)."""
+    world = SimWorld(Scene.from_dict({**scene_dict, 'appearance': 'clean'}))
     world.command_gripper('left', 100.0, velocity_percent=100.0)      # open, as at the application's first look
     world.step(240)
     image = world.render_camera('left_hand_camera', trial_scenes.start_view(start_pose)[2])

@@ -292,7 +292,7 @@ class TestCameraAndSceneFaults:
         dark = (stamps >= 4.5) & (stamps < 5.0)
         assert dark.sum() >= 4
         print(f'\nmean grey level: blackout {means[dark].max():.2f} (max), otherwise {means[~dark].min():.1f} (min)')
-        assert np.all(means[dark] < 3.0) and np.all(means[~dark] > 60.0)
+        assert np.all(means[dark] < 3.0) and np.all(means[~dark] > 20.0)          # the baxter look: ~42
 
     def test_brightness_gain_and_occluder_against_an_in_process_render(self, run):
         width, height, _ = CAMERA_MODE

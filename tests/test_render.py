@@ -17,12 +17,14 @@ import pytest
 
 from baxter_pnp.runtime import PACKAGE_ROOT
 from baxter_pnp.sim import render
-from baxter_pnp.sim.appearance import AppearanceConfig, expand, table_texture
+from baxter_pnp.sim.appearance import AppearanceConfig, expand, preset_look, table_texture
 from baxter_pnp.sim.cameras import sensor_model, sensor_window
 from baxter_pnp.sim.launcher import FakeBaxterProcess
 from baxter_pnp.sim.scene import load_scene
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import make_transform
+
+CLEAN = preset_look('clean')     # TinyRenderer's look: no soft shadows, no motion blur
 
 NO_EGL_ENV = {'__EGL_VENDOR_LIBRARY_FILENAMES': '/nonexistent/egl_vendor.json'}   # glvnd finds no EGL driver
 FALLBACK_LOG = 'camera renderer: EGL not used'
@@ -81,8 +83,9 @@ def cpu_per_frame(world, camera, frames=5):
 @needs_egl
 @pytest.mark.parametrize('start', ['down', 'angled'])
 def test_egl_draws_the_hand_camera_as_tinyrenderer_does_for_a_tenth_of_the_cpu(camera, start):
-    """Two worlds of the default scene, one per renderer: same image (incl. lens distortion), same block."""
-    scene = dataclasses.replace(load_scene(), start=start)
+    """Two worlds of the default scene under the ``clean`` look, one per renderer: same image (incl. lens
+    distortion), same block."""
+    scene = dataclasses.replace(load_scene(), start=start, appearance=CLEAN)
     worlds = {kind: SimWorld(scene, renderer=kind) for kind in ('tiny', 'egl')}
     try:
         assert {kind: world.renderer_name for kind, world in worlds.items()} == {'tiny': 'tiny', 'egl': 'egl'}
@@ -144,7 +147,8 @@ def test_egl_draws_the_chessboard_as_tinyrenderer_does(camera):
     Only below the fingers (rows 150 on), where the board lies: the scene's camera error turns the camera so
     that the top rows show a part of the hand next to the lens, which TinyRenderer draws as a dark band across
     the image and EGL does not (3.8 grey levels over the whole image; not the board's doing)."""
-    scene = load_scene(os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'hand_eye.yaml'))
+    scene = dataclasses.replace(load_scene(os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'hand_eye.yaml')),
+                                appearance=CLEAN)
     worlds = {kind: SimWorld(scene, renderer=kind) for kind in ('tiny', 'egl')}
     try:
         images = {kind: world.render_camera('left_hand_camera', camera)[150:] for kind, world in worlds.items()}
@@ -161,7 +165,7 @@ def test_egl_draws_the_chessboard_as_tinyrenderer_does(camera):
 def test_egl_follows_the_scene_and_draws_the_arm_as_tinyrenderer_does():
     """A view of the robot (cylinders, boxes, the block); then a moved block, a recoloured link, a moved arm and
     a body added after the renderer was made: each drawn by both renderers alike."""
-    world = SimWorld(dataclasses.replace(load_scene(), start='angled'), renderer='egl')
+    world = SimWorld(dataclasses.replace(load_scene(), start='angled', appearance=CLEAN), renderer='egl')
     meshes = world._renderer._meshes
     tiny, egl = render.TinyRenderer(world._client), render.EglRenderer(world._client, meshes)
     ideal = sensor_model('front').windowed(sensor_window(640, 400)).scaled(320, 200)

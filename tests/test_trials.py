@@ -234,7 +234,7 @@ def test_rows_carry_their_conditions_and_are_summarised_per_condition(tmp_path, 
 
 def test_appearance_option_puts_a_look_per_seed_into_the_scene_and_the_records(tmp_path):
     args = trials.parse_args(['--appearance', 'random'])
-    assert args.appearance == 'random' and trials.parse_args([]).appearance == 'clean'
+    assert args.appearance == 'random' and trials.parse_args([]).appearance == 'baxter'      # the fake's default
     for bad in (['--appearance', 'sunny'], ['--soak', '3', '--appearance', 'random']):
         with pytest.raises(SystemExit):
             trials.parse_args(bad)
@@ -249,7 +249,7 @@ def test_appearance_option_puts_a_look_per_seed_into_the_scene_and_the_records(t
     assert scenes[11]['appearance'] != scenes[12]['appearance']
     clean = trial_scenes.random_scene(np.random.default_rng(11), 'down',
                                       appearance=trial_scenes.trial_appearance('clean', 11))
-    assert 'appearance' not in clean and clean['objects'] == scenes[11]['objects']   # same placements as before
+    assert clean['appearance'] == 'clean' and clean['objects'] == scenes[11]['objects']   # same placements
     assert trials.scene_conditions(clean)['appearance'] == 'clean'
     baxter = trial_scenes.random_scene(np.random.default_rng(11), 'down', appearance='baxter')
     assert trials.scene_conditions(baxter)['appearance'] == 'baxter'

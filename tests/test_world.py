@@ -77,8 +77,11 @@ def move_gripper(world, kinematics, T, speed_ratio=0.5, timeout=5.0):
     raise AssertionError('arm did not reach the IK target')
 
 
+CLEAN = appearance.preset_look('clean')      # block_mask's thresholds: a saturated block in full light
+
+
 def block_mask(image):
-    """Boolean mask of the lit green top face of a block."""
+    """Boolean mask of the lit green top face of a block (``appearance: clean``)."""
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
     return (hsv[:, :, 0] > 45) & (hsv[:, :, 0] < 75) & (hsv[:, :, 1] > 100) & (hsv[:, :, 2] > 150)
 
@@ -200,7 +203,7 @@ def test_closing_on_nothing_is_missed(world):
 # ------------------------------------------------------------------------------------------------ sensors
 @pytest.mark.parametrize('start', ['down', 'angled'])
 def test_block_appears_where_the_camera_model_projects_it(camera, start):
-    world = SimWorld(dataclasses.replace(load_scene(), start=start))   # the default scene's block
+    world = SimWorld(dataclasses.replace(load_scene(), start=start, appearance=CLEAN))   # the default scene's block
     image = world.render_camera('left_hand_camera', camera, np.random.default_rng(0))
     assert image.shape == (400, 640, 3) and image.dtype == np.uint8
     T_camera_block = invert(world.link_pose('left_hand_camera')) @ world.object_poses()[0]
@@ -230,7 +233,7 @@ def test_camera_error_moves_the_true_camera(camera):
     shift, focal_scale = 0.01, 1.05   # m along the published camera's x; true / published focal length
     masks = []
     for error in (CameraError(), CameraError(xyz=(shift, 0.0, 0.0)), CameraError(focal_scale=focal_scale)):
-        world = SimWorld(dataclasses.replace(load_scene(), camera_error=error))
+        world = SimWorld(dataclasses.replace(load_scene(), camera_error=error, appearance=CLEAN))
         masks.append(block_mask(world.render_camera('left_hand_camera', camera)))
         depth = (invert(world.link_pose('left_hand_camera')) @ world.object_poses()[0])[2, 3]
         world.close()

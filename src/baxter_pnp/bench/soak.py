@@ -43,10 +43,11 @@ def soak_poses(rng, start_pose, count, place_xy, table=None, size_range=(0.03, 0
     return side, poses
 
 
-def soak_scene(side, poses, start_pose, table=None, faults=None, respawn_delay=RESPAWN_DELAY):
+def soak_scene(side, poses, start_pose, table=None, faults=None, respawn_delay=RESPAWN_DELAY, appearance=None):
     """Scene dict of a soak: the green square of ``side`` (m) at ``poses[0]``, respawned by the fake at
     ``poses[1:]`` in turn (``respawn:`` key, ``respawn_delay`` s) after each pick and place; ``faults``: the
-    ``faults:`` mapping or None. Needs at least two poses."""
+    ``faults:`` mapping or None; ``appearance``: a preset name or None (the fake's default look). Needs at least
+    two poses."""
     if len(poses) < 2:
         raise ValueError('a soak needs at least two poses (the first, then the respawns)')
     table = table or Table()
@@ -54,6 +55,8 @@ def soak_scene(side, poses, start_pose, table=None, faults=None, respawn_delay=R
     extra = {'respawn': {'poses': [list(pose) for pose in poses[1:]], 'delay': respawn_delay, 'object': 0}}
     if faults is not None:
         extra['faults'] = faults
+    if appearance is not None:
+        extra['appearance'] = appearance
     return scene_dict([block_entry(*TARGET, side, yaw, (x, y))], start_pose, table, **extra)
 
 
@@ -266,7 +269,7 @@ class SoakWatcher:
 
 
 def run_soak(master, cycles, mode, start_pose, place_xy, out, seed=0, step_fraction=0.35, timeout_per_cycle=300.0,
-             faults=None):
+             faults=None, appearance=None):
     """``cycles`` pick-and-place cycles in one ``pick_square.py --cycles`` run against one fake Baxter that
     respawns the block (:func:`soak_scene`), scored per cycle with the ground truth; returns (cycle rows,
     summary dict). Writes ``scene.yaml``, ``fake_baxter.log``, ``pick.log``, ``result.json`` (the
@@ -279,7 +282,7 @@ def run_soak(master, cycles, mode, start_pose, place_xy, out, seed=0, step_fract
     from baxter_pnp.sim.launcher import FakeBaxterProcess, start_script
     os.makedirs(out, exist_ok=True)
     side, poses = soak_poses(np.random.default_rng(seed), start_pose, cycles, place_xy)
-    scene = soak_scene(side, poses, start_pose, faults=faults)
+    scene = soak_scene(side, poses, start_pose, faults=faults, appearance=appearance)
     scene_path, result_path = os.path.join(out, 'scene.yaml'), os.path.join(out, 'result.json')
     with open(scene_path, 'w') as f:
         yaml.safe_dump(scene, f, default_flow_style=None, sort_keys=False)
@@ -333,7 +336,8 @@ def soak_main(args, faults, out, command):
     with RosMaster(log_dir=os.path.join(out, 'ros_log')) as master, master.environment():
         rospy.init_node('run_trials', anonymous=True, disable_signals=True)
         _, summary = run_soak(master, args.soak, args.mode, args.start_pose, args.place, out, seed=args.seed,
-                              step_fraction=args.step_fraction, timeout_per_cycle=args.timeout, faults=faults)
+                              step_fraction=args.step_fraction, timeout_per_cycle=args.timeout, faults=faults,
+                              appearance=args.appearance)
         rospy.signal_shutdown('soak finished')
     with open(os.path.join(out, 'soak.json'), 'w') as f:
         json.dump({'command': command, 'args': vars(args), **summary}, f, indent=1)

@@ -23,6 +23,7 @@ from baxter_pnp import pick, table_plan
 from baxter_pnp.bench.records import format_number, write_rows
 from baxter_pnp.bench.trial_scenes import (COLOURS_RGB, SORT_BINS, STACK_AT, STACK_ORDER, random_table_scene,
                                            table_task_places, trial_appearance)
+from baxter_pnp.sim.appearance import DEFAULT_PRESET
 
 PLACE_TOLERANCE = 0.015     # m: a block this close (xy) to its slot (the tower's place) is there
 STACK_TOLERANCE = 0.01      # m: each stacked block this close (xy) to the one below (the 1 cm)
@@ -128,7 +129,7 @@ def run_table_trial(master, scene, task, mode, workdir, timeout=900.0, seed=0, t
         with open(result_path) as f:
             result = json.load(f)
     scores = {'ok': False} if T_end is None else (score_sort if task == 'sort' else score_stack)(scene, T_end)
-    look = scene.get('appearance', 'clean')
+    look = scene.get('appearance', DEFAULT_PRESET)
     row = {'task': task, 'mode': mode, 'trial': trial, 'seed': seed,
            'appearance': 'random' if isinstance(look, dict) else look,
            'app_success': None if result is None else bool(result['success']),

@@ -18,7 +18,7 @@ from baxter_pnp import pick, view
 from baxter_pnp.camera import load_default_camera
 from baxter_pnp.kinematics import ArmKinematics, load_start_poses
 from baxter_pnp.models import SHAPES, model_for
-from baxter_pnp.sim.appearance import random_appearance
+from baxter_pnp.sim.appearance import preset_look, random_appearance
 from baxter_pnp.sim.scene import Scene, Table, load_faults
 from baxter_pnp.sim.world import SimWorld
 from baxter_pnp.transforms import invert, make_transform, raised, transform_points
@@ -70,11 +70,11 @@ def rendered_hand_clearance_px(start_pose):
     the hand (open gripper fingers) hides the table.
 
     Found by rendering the empty table (``SimWorld``, the fake's renderer) from the start pose with the
-    gripper fully open, as the application's first look sees it; the fingers render dark (grey level
-    < ``HAND_GREY_LEVEL``), the table and floor light.
+    gripper fully open, as the application's first look sees it, under the ``clean`` look (a footprint, whatever
+    the trials' look): the fingers render dark (grey level < ``HAND_GREY_LEVEL``), the table and floor light.
     """
     _, _, camera, _ = start_view(start_pose)
-    world = SimWorld(Scene(start=start_pose))
+    world = SimWorld(Scene(start=start_pose, appearance=preset_look('clean')))
     world.command_gripper(SIDE, 100.0, velocity_percent=100.0)
     world.step(480)
     image = world.render_camera(f'{SIDE}_hand_camera', camera, np.random.default_rng(0))
@@ -183,7 +183,7 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     ``same_colour_distractor`` one more block has the target's colour but another shape (triangle,
     pentagon or hexagon; the last block). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
     schema), none if None. ``appearance``: the scene's ``appearance:`` value (a preset name or a mapping,
-    ``sim/appearance.py``; see :func:`trial_appearance`), none (clean) if None. ``clutter_rng``: a generator
+    ``sim/appearance.py``; see :func:`trial_appearance`), none (the fake's default look) if None. ``clutter_rng``: a generator
     to draw :func:`random_clutter` with (after the blocks), none if None. ``rng`` is a
     ``numpy.random.Generator``.
     """
@@ -273,15 +273,15 @@ def random_clutter(rng, start_pose, table, blocks_xy):
 
 
 def trial_appearance(choice, seed):
-    """The ``appearance:`` value of a trial's scene for ``run_trials.py --appearance choice``: None for
-    ``clean`` (no key, the scenes as before), ``'baxter'``, or for ``random`` a look drawn by
+    """The ``appearance:`` value of a trial's scene for ``run_trials.py --appearance choice``: the preset name
+    (``'clean'``, ``'baxter'``), or for ``random`` a look drawn by
     ``sim.appearance.random_appearance`` from the trial's ``seed`` (its own generator stream, so the same seed
     gives the same look and the same placements as with any other choice)."""
     if choice not in APPEARANCES:
         raise ValueError(f'appearance must be one of {APPEARANCES}, not {choice!r}')
     if choice == 'random':
         return random_appearance(np.random.default_rng([seed, APPEARANCE_STREAM]))
-    return None if choice == 'clean' else choice
+    return choice
 
 
 def trial_clutter_rng(choice, seed):

@@ -41,7 +41,7 @@ from baxter_pnp.bench.soak import SOAK_PLACE_XY, soak_main
 from baxter_pnp.bench.table_trials import table_trials_main
 from baxter_pnp.bench.trial_scenes import (APPEARANCES, COLOURS_RGB, load_faults_mapping, random_scene, trial_appearance,
                                            trial_clutter_rng)
-from baxter_pnp.sim.appearance import describe
+from baxter_pnp.sim.appearance import DEFAULT_PRESET, describe
 from baxter_pnp.sim.scene import Scene, SceneError
 
 MODES = pick.MODES
@@ -206,7 +206,7 @@ def scene_conditions(scene):
     a block colour), same_colour_distractor, clutter (count of the chessboards, tape, cups and black or white
     cubes), faults (``Faults.summary()``), appearance (``clean``, ``baxter``, or ``random`` for a mapping) and
     appearance_look (a mapping's ``sim.appearance.describe`` label, None for a preset)."""
-    target, look = scene['objects'][0], scene.get('appearance', 'clean')
+    target, look = scene['objects'][0], scene.get('appearance', DEFAULT_PRESET)
     colours = [list(rgb) for rgb in COLOURS_RGB.values()]
     others = scene['objects'][1:]
     blocks = [o for o in others if o['shape'] not in ('chessboard', 'tape', 'cup') and list(o['color']) in colours]
@@ -337,7 +337,7 @@ def parse_args(argv):
                         help="one more block per scene of the target's colour but not a square")
     parser.add_argument('--faults', metavar='FILE', help="YAML file with a 'faults:' key (as fake_baxter.py "
                         "--faults, docs/fake_baxter.md): the faults of every scene")
-    parser.add_argument('--appearance', choices=APPEARANCES, default='clean',
+    parser.add_argument('--appearance', choices=APPEARANCES, default=DEFAULT_PRESET,
                         help="the fake camera's look (docs/fake_baxter.md \"Appearance\"): a preset for every "
                              "scene, or random: a look per scene drawn from its seed (default %(default)s)")
     parser.add_argument('--timeout', type=float,
@@ -367,8 +367,8 @@ def parse_args(argv):
             parser.error('--soak needs at least 2 cycles')
         if args.mode == 'all' or args.start_pose == 'both':
             parser.error('--soak runs one mode from one start pose')
-        if args.distractors or args.distractor_same_colour or args.from_csv or args.appearance != 'clean':
-            parser.error('--soak takes no distractors, no --appearance and no --from-csv')
+        if args.distractors or args.distractor_same_colour or args.from_csv or args.appearance == 'random':
+            parser.error('--soak takes no distractors, no --appearance random and no --from-csv')
         args.mode, args.start_pose = args.mode or 'pbvs', args.start_pose or 'down'
         args.place = args.place or list(SOAK_PLACE_XY)
     else:

@@ -1,10 +1,11 @@
 """How the fake's camera images look: the scene key ``appearance`` and the image formation applied to each render.
 
-``appearance: clean`` is the look the fake always had (a light table, full light, noise of 2 grey levels per
-channel); ``appearance: baxter`` is measured on real Baxter hand-camera frames (``../shared/real/baxter_hand_a``,
-``baxter_hand_b``; ``bench/appearance_stats.py`` prints real and rendered statistics side by side): a grey table
-in dim light, vignetting, a slight colour cast, noise in every channel. A mapping overrides a preset's keys:
-``appearance: {preset: baxter, exposure: 0.4}``. ``random_appearance`` draws a look for domain randomisation
+``appearance: baxter``, the default (``DEFAULT_PRESET``), is measured on real Baxter hand-camera frames
+(``../shared/real/baxter_hand_a``, ``baxter_hand_b``; ``bench/appearance_stats.py`` prints real and rendered
+statistics side by side): a grey table in dim light, vignetting, a slight colour cast, noise in every channel, soft
+shadows and motion blur; ``appearance: clean`` is the look the fake first had (a light table, full light, noise of
+2 grey levels per channel). A mapping overrides a preset's keys: ``appearance: {preset: clean, exposure: 0.4}``
+(without ``preset``: the default's). ``random_appearance`` draws a look for domain randomisation
 (``run_trials.py --appearance random``). Pure (numpy, OpenCV): the world renders, then ``form_image`` turns the
 render into the camera's image.
 """
@@ -19,6 +20,7 @@ import numpy as np
 from baxter_pnp.params import Parameters
 
 MAX_EXPOSURE_TIME = 0.1        # s: the longest frame integration (a 10 fps camera's whole frame time)
+DEFAULT_PRESET = 'baxter'      # the look of a scene without an ``appearance`` key, the base of a mapping without ``preset``
 PRESETS = {
     'clean': {},
     # Medians over the 35 real frames (bench/appearance_stats.py): table L* 25-36 at the image median, corners
@@ -77,15 +79,25 @@ class AppearanceConfig(Parameters):
 
 
 def expand(value):
-    """The mapping of a scene's ``appearance`` value (a preset name, or a mapping of ``preset`` plus overrides):
-    the preset's keys, overridden by the mapping's; other values are returned as they are (the parameter
+    """The mapping of a scene's ``appearance`` value (a preset name, or a mapping of ``preset``, default
+    ``DEFAULT_PRESET``, plus overrides): the preset's keys, overridden by the mapping's; other values are returned as they are (the parameter
     check names them)."""
     if isinstance(value, str):
         value = {'preset': value}
     if not isinstance(value, dict):
         return value
-    preset = value.get('preset', 'clean')
-    return {**PRESETS.get(preset, {}), **value}
+    preset = value.get('preset', DEFAULT_PRESET)
+    return {'preset': preset, **PRESETS.get(preset, {}), **value}
+
+
+def preset_look(name):
+    """The ``AppearanceConfig`` of preset ``name`` ('clean', 'baxter')."""
+    return AppearanceConfig.from_dict(expand(name))
+
+
+def default_appearance():
+    """The ``AppearanceConfig`` of a scene without an ``appearance`` key: the ``DEFAULT_PRESET`` look."""
+    return preset_look(DEFAULT_PRESET)
 
 
 # Ranges of random_appearance (uniform draws), each spanning clean..baxter and a bit beyond. The baxter values

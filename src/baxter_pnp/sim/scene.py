@@ -12,7 +12,7 @@ Lengths in metres and angles in radians, in Baxter's ``base`` frame (see docs/AR
     camera_error: {xyz: [0, 0, 0], rpy: [0, 0, 0], focal_scale: 1.0}
     faults: {camera: {drop_probability: 0.2}, estop_at: 10.0}     # sim.faults; docs/fake_baxter.md
     respawn: {poses: [[0.62, 0.30, 0.5], [0.70, 0.18, -1.0]], delay: 2.0, object: 0}   # (x m, y m, yaw rad)
-    appearance: clean    # 'clean' | 'baxter' | {preset: baxter, exposure: 0.5, ...}: sim.appearance
+    appearance: baxter   # 'baxter' (a real hand camera's look) | 'clean' | {preset: clean, exposure: 0.5, ...}
     supersampling: 1     # camera samples a pixel along each axis (2: anti-aliased edges, n^2 the drawing cost)
 
 ``table``, ``start``, ``camera_error``, ``faults``, ``respawn``, ``appearance`` and ``supersampling`` (and each of
@@ -291,7 +291,7 @@ class Scene(Parameters):
     camera_error: CameraError = field(default_factory=CameraError)
     faults: Faults = field(default_factory=Faults)
     respawn: Optional[Respawn] = None
-    appearance: AppearanceConfig = field(default_factory=AppearanceConfig)
+    appearance: AppearanceConfig = field(default_factory=appearance.default_appearance)
     supersampling: int = 1
 
     def validate(self):

@@ -18,11 +18,11 @@ import yaml
 
 from baxter_pnp.bench.ground_truth import GroundTruthMonitor, lift_times, write_ground_truth
 from baxter_pnp.bench.records import csv_value, format_number, percentile, write_rows
-from baxter_pnp.bench.trial_scenes import BLOCK_HEIGHT, TARGET, block_entry, draw_placement, scene_dict
+from baxter_pnp.bench.trial_scenes import (BLOCK_HEIGHT, PLACE_CLEARANCE, TARGET, block_entry, draw_placement,
+                                           scene_dict)
 from baxter_pnp.sim.scene import RESPAWN_DELAY, Table
 
 SOAK_PLACE_XY = (0.62, 0.12)      # m (base): default place position of a soak (as in the place trials)
-SOAK_PLACE_CLEARANCE = 0.10       # m: every soak pose's centre stays this far from the place position
 SOAK_POLL = 0.25                  # wall s between looks at the application's result JSON
 SOAK_MEMORY_INTERVAL = 10.0       # wall s between the periodic memory samples
 SOAK_FIELDS = ('cycle', 'app_success', 'failure_reason', 'lifted', 'verified', 'time_s', 'total_time_s', 'steps',
@@ -34,11 +34,11 @@ SOAK_MEMORY_FIELDS = ('wall_s', 'sim_s', 'cycles_done', 'app_rss_mib', 'fake_rss
 def soak_poses(rng, start_pose, count, place_xy, table=None, size_range=(0.03, 0.05)):
     """(side (m), [(x (m), y (m), yaw (rad))] * ``count``): one green square's side and ``count`` poses of it
     on the table, each drawn by ``trial_scenes.draw_placement`` (whole top face in view from ``start_pose``,
-    pickable) with its centre at least ``SOAK_PLACE_CLEARANCE`` from ``place_xy`` (m, base)."""
+    pickable) with its centre at least ``PLACE_CLEARANCE`` from ``place_xy`` (m, base)."""
     side, poses = None, []
     for _ in range(count):
         side, yaw, xy = draw_placement(rng, TARGET[0], start_pose, table, side=side, size_range=size_range,
-                                       require_pickable=True, avoid=[(place_xy, SOAK_PLACE_CLEARANCE)])
+                                       require_pickable=True, avoid=[(place_xy, PLACE_CLEARANCE)])
         poses.append((round(float(xy[0]), 5), round(float(xy[1]), 5), round(yaw, 5)))
     return side, poses
 

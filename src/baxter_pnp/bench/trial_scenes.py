@@ -38,6 +38,9 @@ CLUTTER_GREYS = {'black': (0.04, 0.10), 'white': (0.85, 0.95)}    # grey level r
 CUP_COLOURS = {'white': (0.92, 0.92, 0.9), **COLOURS_RGB}
 CLUTTER_MARGIN = 0.05                 # m between clutter and a block's outline (a cup: CUP_CLEARANCE to the target)
 CUP_CLEARANCE = 0.15                  # m from a cup's side to the target's centre: the fingers come down beside it
+# m: blocks keep this far from a pick and place's place position: the application counts a block within two sides
+# (<= 2 x 50 mm) of it as already placed (task.target)
+PLACE_CLEARANCE = 0.10
 
 
 @functools.lru_cache(maxsize=None)
@@ -174,7 +177,7 @@ def scene_dict(objects, start_pose, table, **extra):
 
 
 def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_colour_distractor=False,
-                 margin_px=20.0, table=None, faults=None, appearance=None, clutter_rng=None):
+                 margin_px=20.0, table=None, faults=None, appearance=None, clutter_rng=None, place_xy=None):
     """A random scene dict (``sim/scene.py`` schema) with one green square the application can pick.
 
     The target (``objects[0]``): drawn by :func:`draw_placement` (whole top face in view from
@@ -184,16 +187,18 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     pentagon or hexagon; the last block). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
     schema), none if None. ``appearance``: the scene's ``appearance:`` value (a preset name or a mapping,
     ``sim/appearance.py``; see :func:`trial_appearance`), none (the fake's default look) if None. ``clutter_rng``: a generator
-    to draw :func:`random_clutter` with (after the blocks), none if None. ``rng`` is a
-    ``numpy.random.Generator``.
+    to draw :func:`random_clutter` with (after the blocks), none if None. ``place_xy``: the place position (m, base)
+    of a pick and place, which every block keeps ``PLACE_CLEARANCE`` from (the application takes a block there for
+    one already placed), None without. ``rng`` is a ``numpy.random.Generator``.
     """
     table = table or Table()
     objects, placed = [], []
+    keep_off = [] if place_xy is None else [(tuple(place_xy), PLACE_CLEARANCE)]
 
     def add(shape, colour, require_pickable=False):
         side, yaw, xy = draw_placement(rng, shape, start_pose, table, size_range=size_range, margin_px=margin_px,
                                        require_pickable=require_pickable,
-                                       avoid=[(other, DISTRACTOR_MIN_DISTANCE) for other in placed])
+                                       avoid=[(other, DISTRACTOR_MIN_DISTANCE) for other in placed] + keep_off)
         objects.append(block_entry(shape, colour, side, yaw, xy))
         placed.append(xy)
 

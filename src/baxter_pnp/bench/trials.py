@@ -120,7 +120,7 @@ def summarise(rows, by_start_pose=False, by_condition=False):
     summary = {}
     for key, mine in groups.items():
         verified = [r for r in mine if r['verified']]
-        centring = [r['centring_mm'] for r in verified]
+        centring = [r['centring_mm'] for r in verified if r['centring_mm'] is not None]    # None: placed
         pre_close = [r['pre_close_offset_mm'] for r in verified if r['pre_close_offset_mm'] is not None]
         times = [r['time_s'] for r in verified]
         failures = {}
@@ -413,7 +413,7 @@ def main(argv=None):
             scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors,
                                  same_colour_distractor=args.distractor_same_colour, faults=faults,
                                  appearance=trial_appearance(args.appearance, scene_seed),
-                                 clutter_rng=trial_clutter_rng(args.appearance, scene_seed))
+                                 clutter_rng=trial_clutter_rng(args.appearance, scene_seed), place_xy=args.place)
             plan += [(start_pose, trial, scene_seed, scene, mode) for mode in modes]
     rows = []
     print(f'{len(plan)} runs ({args.trials} scenes x {len(start_poses)} start poses x {len(modes)} modes, '

@@ -236,7 +236,10 @@ def test_pick_and_place_outputs_seen_by_another_node(ros_master, ros_node, fake_
     (expected pbvs); ``lift_height`` 0.07 m in the YAML, 0.12 m as ``~lift_height`` (expected 0.12: the block's
     true lift); ``speed_ratio`` 0.4 in the YAML only (expected 0.4 on ``set_speed_ratio``, not the default 0.3).
     """
-    fake = fake_baxter('--real-time-factor', '0', '--scene', scene_with_focal_error(tmp_path, FOCAL_SCALE))
+    # paced at 1x, as a robot: unpaced on a loaded machine the block ended 2.5 and 3.0 mm off twice in ~15 suite runs
+    # (the place batches, unpaced, never above 1.2 mm: README "Place")
+    fake = fake_baxter('--real-time-factor', '1', '--clock', 'sim', '--scene',
+                       scene_with_focal_error(tmp_path, FOCAL_SCALE))
     watcher = GraphWatcher(with_tf=True)
     try:
         with open(DEFAULT_CONFIG) as f:
@@ -284,7 +287,8 @@ def check_place(result):
     T_base_block = ground_truth_block()
     true_error = np.hypot(T_base_block[0, 3] - PLACE_XY[0], T_base_block[1, 3] - PLACE_XY[1])
     # README: placement error median 0.4 mm, largest 1.2 mm (ground truth, 18 blocks); 1 mm of margin
-    assert true_error < 0.0022, 'placed %.1f mm from the place position' % (1000 * true_error)
+    assert true_error < 0.0022, 'placed %.1f mm from the place position (the app\'s look: %s mm)' % (
+        1000 * true_error, result['place_error_mm_est'])
     # resting on the table: its top face block_height above the table top (0.5 mm: contact penetration)
     assert T_base_block[2, 3] == pytest.approx(TABLE_TOP_Z + BLOCK_HEIGHT, abs=0.0005)
     # the estimate (a look from 0.25 m after placing): the estimate's p90 of 1.0 mm (README, "Perception"), plus

@@ -166,7 +166,8 @@ def run_case(ros_master, fake_baxter, floors, tmp_path, faults=None, extra_objec
     meanwhile, if given), check the tip, hand and camera heights; return (exit code, result dict, log, fake
     process)."""
     limits, T_tip_body = floors
-    fake = fake_baxter('--real-time-factor', str(real_time_factor), '--scene', scene_with(tmp_path, faults, extra_objects),
+    fake = fake_baxter('--real-time-factor', str(real_time_factor),
+                       '--scene', scene_with(tmp_path, faults, extra_objects),
                        '--seed', '1')
     monitor = BodyHeightMonitor(T_tip_body)
     result_path = tmp_path / 'result.json'

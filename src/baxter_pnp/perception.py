@@ -92,8 +92,8 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
 
 def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane):
     """The observation of ``detection``'s whole blob (``vision.blob_detection``) as a ``shape`` block, when the top
-    face split off it got no pose, a poor fit or has another shape (a shadow's edge across the face taken for a side face's):
-    with its pose, or with the pose's error; None when there was no split or the blob is no ``shape``."""
+    face split off it got no pose, a poor fit or has another shape (a shadow's edge across the face taken for a side
+    face's): with its pose, or with the pose's error; None when there was no split or the blob is no ``shape``."""
     whole = vision.blob_detection(image_bgr, detection, vision_config, shape)
     if whole is None:
         return None

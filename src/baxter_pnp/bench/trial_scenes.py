@@ -186,10 +186,10 @@ def random_scene(rng, start_pose, size_range=(0.03, 0.05), distractors=0, same_c
     ``same_colour_distractor`` one more block has the target's colour but another shape (triangle,
     pentagon or hexagon; the last block). ``faults``: the scene's ``faults:`` mapping (``sim/faults.py``
     schema), none if None. ``appearance``: the scene's ``appearance:`` value (a preset name or a mapping,
-    ``sim/appearance.py``; see :func:`trial_appearance`), none (the fake's default look) if None. ``clutter_rng``: a generator
-    to draw :func:`random_clutter` with (after the blocks), none if None. ``place_xy``: the place position (m, base)
-    of a pick and place, which every block keeps ``PLACE_CLEARANCE`` from (the application takes a block there for
-    one already placed), None without. ``rng`` is a ``numpy.random.Generator``.
+    ``sim/appearance.py``; see :func:`trial_appearance`), none (the fake's default look) if None. ``clutter_rng``:
+    a generator to draw :func:`random_clutter` with (after the blocks), none if None. ``place_xy``: the place
+    position (m, base) of a pick and place, which every block keeps ``PLACE_CLEARANCE`` from (the application takes
+    a block there for one already placed), None without. ``rng`` is a ``numpy.random.Generator``.
     """
     table = table or Table()
     objects, placed = [], []

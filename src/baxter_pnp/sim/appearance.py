@@ -20,7 +20,7 @@ import numpy as np
 from baxter_pnp.params import Parameters
 
 MAX_EXPOSURE_TIME = 0.1        # s: the longest frame integration (a 10 fps camera's whole frame time)
-DEFAULT_PRESET = 'baxter'      # the look of a scene without an ``appearance`` key, the base of a mapping without ``preset``
+DEFAULT_PRESET = 'baxter'      # the look of a scene without ``appearance``; a mapping without ``preset`` overrides it
 PRESETS = {
     'clean': {},
     # Medians over the 35 real frames (bench/appearance_stats.py): table L* 25-36 at the image median, corners
@@ -80,8 +80,8 @@ class AppearanceConfig(Parameters):
 
 def expand(value):
     """The mapping of a scene's ``appearance`` value (a preset name, or a mapping of ``preset``, default
-    ``DEFAULT_PRESET``, plus overrides): the preset's keys, overridden by the mapping's; other values are returned as they are (the parameter
-    check names them)."""
+    ``DEFAULT_PRESET``, plus overrides): the preset's keys, overridden by the mapping's; other values are returned
+    as they are (the parameter check names them)."""
     if isinstance(value, str):
         value = {'preset': value}
     if not isinstance(value, dict):

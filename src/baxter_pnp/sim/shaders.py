@@ -34,7 +34,8 @@ in vec3 shadow_position;
 uniform sampler2DShadow shadow_map;
 uniform float shadow_strength, shadow_bias;   // share of the direct light blocked; depth (0..1)
 float sunlit() {       // 1 in full light, 1 - shadow_strength in full shadow
-    return 1.0 - shadow_strength * (1.0 - texture(shadow_map, vec3(shadow_position.xy, shadow_position.z - shadow_bias)));
+    float seen = texture(shadow_map, vec3(shadow_position.xy, shadow_position.z - shadow_bias));   // 0..1, 2x2 filtered
+    return 1.0 - shadow_strength * (1.0 - seen);
 }
 #else
 float sunlit() { return 1.0; }

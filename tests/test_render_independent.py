@@ -174,3 +174,20 @@ def test_r2_datasets_built_measured_and_dumped(camera, tmp_path):
     missed = sum(not r['detected'] for r in rows if r['estimator'] == 'sqp')
     assert len(paths) == 3 + min(3, missed) and all(os.path.getsize(p) > 0 for p in paths)
     assert len(open(tmp_path / 'worst.tsv').read().splitlines()) == 1 + len(paths)
+
+
+def test_latency_is_measured_on_the_hand_cameras_640x400_frames(camera):
+    """The latency table renders new frames for the 640x400 window a real hand camera delivers (the thesis
+    calibration's centred window: the principal point moves up by 40 px) and times vision + sqp on them."""
+    hand = perception_bench.hand_camera(camera)
+    assert (hand.width, hand.height) == (640, 400)
+    assert hand.cx == pytest.approx(camera.cx) and hand.cy == pytest.approx(camera.cy - 40.0)
+    config = vision.VisionConfig.from_yaml(None)
+    results = perception_bench.measure_latency(['green40', 'small_r2'], {'green40': 4, 'small_r2': 3}, 1, hand,
+                                               config)
+    assert [(r['dataset'], r['frames'], r['width'], r['height']) for r in results] == [
+        ('green40', 4, 640, 400), ('small_r2', 3, 640, 400)]
+    assert results[0]['detection_rate'] == 1.0        # 40 mm green squares in the open: always found
+    assert all(0.0 < r['frame_ms_median'] <= r['frame_ms_p90'] < 1000.0 for r in results)
+    table = perception_bench.format_latency(results)
+    assert '| green40 | 640x400 | 4 | 100.0% |' in table

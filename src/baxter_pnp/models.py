@@ -6,6 +6,7 @@ face's normal pointing up (away from the table); top-face vertex k (k = 0..n-1) 
 counter-clockwise about +z and, for a square, the edges are parallel to x and y. Lengths in metres,
 angles in radians.
 """
+import functools
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -58,8 +59,10 @@ class PolygonModel:
         return vertices
 
 
+@functools.lru_cache(maxsize=64)
 def model_for(shape, side, height=0.02):
-    """The ``PolygonModel`` of a ``shape`` block with side ``side`` (m) and height ``height`` (m)."""
+    """The ``PolygonModel`` of a ``shape`` block with side ``side`` (m) and height ``height`` (m) (one instance per
+    arguments: a model is immutable, and its vertices are computed once)."""
     return PolygonModel(shape, float(side), float(height))
 
 

@@ -158,7 +158,7 @@ def true_table_plane(T_camera_block, height):
     return models.Plane(normal, float(normal @ bottom_centre))
 
 
-def run_dataset(kind, samples, camera, config, seed, crops=None):
+def run_dataset(kind, samples, camera, config, seed, crops=None, estimators=ESTIMATORS):
     """Render, detect and estimate every sample; returns one result dict per (sample, estimator).
 
     ``crops``: a dict to fill with ``(kind, index) ->`` what ``save_worst`` draws of the frame.
@@ -188,7 +188,7 @@ def run_dataset(kind, samples, camera, config, seed, crops=None):
         if crops is not None:
             crops[(kind, index)] = _crop(image, truths[0]['vertices_px'], target, detections)
         model = models.model_for(spec.shape, spec.side, spec.height)
-        for estimator in ESTIMATORS:
+        for estimator in estimators:
             row = dict(base, estimator=estimator)
             if target is not None:
                 method = estimator.split('+')[0]
@@ -208,6 +208,43 @@ def run_dataset(kind, samples, camera, config, seed, crops=None):
                                                                        model.symmetry_angle)
             rows.append(row)
     return rows
+
+
+HAND_CAMERA_MODE = (640, 400)    # px: the mode a real Baxter hand camera publishes (README, "On a real Baxter")
+LATENCY_SEED_OFFSET = 50          # the latency frames' seeds: their own, not the accuracy sets'
+
+
+def hand_camera(camera):
+    """``camera``'s centred 640x400 window (``HAND_CAMERA_MODE``): what a Baxter hand camera delivers in that mode
+    when ``camera`` is its 640x480 calibration (``image_geometry``'s arithmetic, ``CameraModel.windowed``)."""
+    return camera.windowed(camera_module.SensorWindow.centred(camera.width, camera.height, *HAND_CAMERA_MODE))
+
+
+def measure_latency(kinds, counts, seed, camera, config):
+    """Per dataset of ``kinds`` (``counts``: frames of each), rendered for ``camera``: one dict with the
+    detection rate and vision + ``sqp`` time per frame (ms: median, p90, as the tables' ``ms/frame``: each frame
+    detected then estimated right after its rendering, one OpenCV thread)."""
+    results = []
+    for kind in kinds:
+        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
+        frame_seed = seed + 100 * offset + LATENCY_SEED_OFFSET
+        samples = make_dataset(kind, counts[kind], frame_seed, camera)
+        rows = run_dataset(kind, samples, camera, config, frame_seed, estimators=('sqp',))
+        frame_ms = [r['detect_ms'] + r.get('estimate_ms', 0.0) for r in rows]
+        results.append({'dataset': kind, 'width': camera.width, 'height': camera.height, 'frames': len(rows),
+                        'detection_rate': sum(r['detected'] for r in rows) / max(1, len(rows)),
+                        'frame_ms_median': float(np.median(frame_ms)),
+                        'frame_ms_p90': float(np.percentile(frame_ms, 90))})
+    return results
+
+
+def format_latency(results):
+    """Markdown table of ``measure_latency``'s results."""
+    lines = ['| dataset | image | frames | detected | ms/frame median | ms/frame p90 |', '|---|---|---|---|---|---|']
+    lines += ['| %s | %dx%d | %d | %.1f%% | %.2f | %.2f |' % (
+        r['dataset'], r['width'], r['height'], r['frames'], 100.0 * r['detection_rate'], r['frame_ms_median'],
+        r['frame_ms_p90']) for r in results]
+    return '\n'.join(lines)
 
 
 def _tilt_deg(T_camera_block):
@@ -363,6 +400,9 @@ def main(argv=None):
                         help='save crops of the N found targets with the largest vertex error and of N missed ones '
                              '(truth green, target red, other detections yellow)')
     parser.add_argument('--worst-dir', default=None, help='where the crops go (default OUT/worst)')
+    parser.add_argument('--latency-frames', type=int, default=150, metavar='N',
+                        help='frames of each dataset rendered at 640x400 (a Baxter hand camera\'s mode) for the '
+                             'latency table, vision + sqp (default 150; depth161 has 56; 0: no latency table)')
     args = parser.parse_args(argv)
     limit_to_one_core()
     camera = camera_module.load_default_camera()
@@ -387,9 +427,15 @@ def main(argv=None):
         chosen = [s for s in summaries if s['dataset'] in kinds]
         if chosen:
             print('\n%s\n\n%s' % (title, format_table(chosen)))
+    if args.latency_frames > 0:
+        counts = {kind: 56 if kind == 'depth161' else args.latency_frames for kind in args.datasets}
+        latency = measure_latency(args.datasets, counts, args.seed, hand_camera(camera), config)
+        with open(os.path.join(args.out, 'latency.json'), 'w') as f:
+            json.dump(latency, f, indent=1)
+        print('\nlatency at %dx%d (vision + sqp, one core)\n\n%s' % (*HAND_CAMERA_MODE, format_latency(latency)))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)
         print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
-    print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json)' % (args.out, args.out))
+    print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json)' % (args.out, args.out))
     return 0

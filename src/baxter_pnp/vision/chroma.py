@@ -40,20 +40,29 @@ def white_balance(image_bgr, config):
     if not config.white_balance:
         return ones, 0.0
     pixels = image_bgr[::_WB_STRIDE, ::_WB_STRIDE] if image_bgr.size > 3 * _WB_PIXELS else image_bgr
-    pixels = np.ascontiguousarray(pixels)
+    pixels = np.ascontiguousarray(pixels).reshape(-1, 1, 3)
     lab = cv2.cvtColor(pixels, cv2.COLOR_BGR2LAB).reshape(-1, 3)
     ab = lab[:, 1:].astype(np.int32) - 128
     chroma_squared = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
     mid = (lab[:, 0] >= _WB_MIN_LIGHTNESS * _LAB_SCALE) & (lab[:, 0] <= 95 * _LAB_SCALE)
     if np.count_nonzero(mid) < 0.05 * len(mid):
         return ones, 0.0
-    grey = mid & (chroma_squared <= np.median(chroma_squared[mid]))
-    illuminant = np.median(pixels.reshape(-1, 3)[grey], axis=0).astype(np.float32)
+    grey = mid & (chroma_squared <= _median(chroma_squared[mid]))
+    illuminant = _median(pixels[grey, 0]).astype(np.float32)
     if np.any(illuminant < 1.0):
         return ones, 0.0
     gains = np.clip(illuminant.mean() / illuminant, 1.0 / config.max_gain, config.max_gain).astype(np.float32)
-    balanced = cv2.cvtColor(balanced_bgr(pixels.reshape(-1, 1, 3)[mid], gains), cv2.COLOR_BGR2LAB).reshape(-1, 3)
-    return gains, float(np.hypot(*(np.median(balanced[:, 1:], axis=0) - 128.0)))
+    cast = _median(cv2.cvtColor(balanced_bgr(pixels[mid], gains), cv2.COLOR_BGR2LAB)[:, 0, 1:]) - 128.0
+    return gains, float(np.hypot(cast[0], cast[1]))
+
+
+def _median(values):
+    """``np.median(values, axis=0)`` (float64) by one partial sort, without its overhead (small arrays)."""
+    upper = len(values) // 2
+    if len(values) % 2:
+        return np.partition(values, upper, axis=0)[upper].astype(np.float64)
+    part = np.partition(values, (upper - 1, upper), axis=0)
+    return (part[upper - 1].astype(np.float64) + part[upper]) / 2.0
 
 
 def balanced_bgr(image_bgr, gains):

@@ -205,8 +205,8 @@ def looks_round(contour, vertices):
 
 def _distance_to_boundary(points, vertices):
     """(M,) distance (px) of each of ``points`` (M, 2) to the closed polygon ``vertices`` (k, 2)'s nearest edge."""
-    start = vertices[None, :, :]
-    edge = np.roll(vertices, -1, axis=0)[None, :, :] - start
-    offset = points[:, None, :] - start
-    t = np.clip(np.sum(offset * edge, axis=2) / np.maximum(np.sum(edge * edge, axis=2), 1e-12), 0.0, 1.0)
-    return np.sqrt(np.min(np.sum((offset - t[..., None] * edge) ** 2, axis=2), axis=1))
+    ex = np.roll(vertices[:, 0], -1) - vertices[:, 0]          # components written out: numpy reduces slowly
+    ey = np.roll(vertices[:, 1], -1) - vertices[:, 1]          # over a length-2 axis
+    ox, oy = points[:, :1] - vertices[:, 0], points[:, 1:] - vertices[:, 1]                     # (M, k)
+    t = np.clip((ox * ex + oy * ey) / np.maximum(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
+    return np.sqrt(np.min((ox - t * ex) ** 2 + (oy - t * ey) ** 2, axis=1))

@@ -4,6 +4,8 @@ import cv2
 import numpy as np
 
 _SQUARE3 = np.ones((3, 3), np.uint8)
+_SQUARE5 = np.ones((5, 5), np.uint8)
+_LEVELS = np.arange(256)
 _MIN_RIM_SHARE = 0.3       # a face's outline lies at least this much on the blob's outline ...
 _RIM_DEPTH_PX = 3.5         # ... its rim, this deep (the face's own edge, blurred into the table, lies 1-2 px in)
 _SUPPORT_DIRECTIONS = 32    # _reaches_a_half_turn: directions sampled over the full turn (a multiple of 2) ...
@@ -46,8 +48,8 @@ def isolate_top_face(blob, hsv, config):
     inside = np.zeros((h, w), np.uint8)
     cv2.drawContours(inside, [blob], -1, 255, cv2.FILLED, offset=(-x, -y))
     value, saturation = hsv[box][..., 2].copy(), hsv[box][..., 1].copy()
-    interior = _within(inside, cv2.DIST_C, lambda d: d >= 3)        # eroded by 2 px
-    rim = _within(inside, cv2.DIST_L2, lambda d: d <= _RIM_DEPTH_PX)
+    interior = cv2.erode(inside, _SQUARE5, borderType=cv2.BORDER_CONSTANT, borderValue=0)    # eroded by 2 px
+    rim = _rim(inside)
     face = _split_off_sides(blob, value, saturation, inside, interior, rim, (x, y), config)
     if face is None and cv2.countNonZero(interior) >= _GRADIENT_MIN_PIXELS:
         face = _split_off_sides(blob, _without_gradient(value, interior), saturation, inside, interior, rim, (x, y),
@@ -60,15 +62,17 @@ def _split_off_sides(blob, value, saturation, inside, interior, rim, origin, con
     V ``value``, or None when no split holds."""
     x, y = origin
     values = value[interior > 0]
+    histogram = np.bincount(values, minlength=256)       # of ``values``: the class means without indexing them
     minimum_count = max(config.min_face_fraction * len(values), 1)
     face = blob_hull = None
     while len(values) >= 2:
         cut, _ = cv2.threshold(values, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-        bright = values > cut
-        bright_values = values[bright]
-        if len(bright_values) < minimum_count or len(bright_values) == len(values):
+        split = int(cut) + 1
+        bright_count = int(histogram[split:].sum())
+        if bright_count < minimum_count or bright_count == len(values):
             break
-        bright_mean, dark_mean = float(bright_values.mean()), float(values[~bright].mean())
+        bright_mean = float(histogram[split:] @ _LEVELS[split:]) / bright_count
+        dark_mean = float(histogram[:split] @ _LEVELS[:split]) / (len(values) - bright_count)
         if bright_mean - dark_mean < config.min_contrast * bright_mean:
             break
         region = _bright_region(value, saturation, inside, interior, cut)
@@ -82,7 +86,8 @@ def _split_off_sides(blob, value, saturation, inside, interior, rim, origin, con
         blob_hull = cv2.convexHull(blob) if blob_hull is None else blob_hull
         if not _reaches_a_half_turn(hull, blob_hull, _RIM_DEPTH_PX + _RIM_SHADE_FRACTION * np.sqrt(area)):
             break                  # blob all around it: a highlight, glare or the shaded rim of the face, not a side
-        face, values = outline, bright_values
+        face, values = outline, values[values > cut]
+        histogram[:split] = 0
     return face
 
 
@@ -115,26 +120,35 @@ def _without_gradient(value, interior):
     mean level kept. Vignetting and the light's fall-off brighten a close block's top face from one side to the
     other by as much as a side face lit almost as well differs from it (15 % over 100 px): Otsu's threshold then
     cuts the top face along the gradient, and the side face stays in the polygon."""
-    rows, columns = np.nonzero(interior)
+    rows, columns = np.nonzero(interior[::2, ::2])          # every 2nd pixel each way: a plane needs no more
+    rows, columns = 2 * rows, 2 * columns
     samples = value[rows, columns].astype(np.float64)
-    design = np.column_stack([np.ones(len(rows)), columns - columns.mean(), rows - rows.mean()])
-    keep = np.ones(len(rows), bool)
-    for _ in range(3):
-        coefficients, *_ = np.linalg.lstsq(design[keep], samples[keep], rcond=None)
-        residual = samples - design @ coefficients
-        keep = residual > -residual[keep].std()
+    du, dv = columns - columns.mean(), rows - rows.mean()
+    keep = np.ones(len(rows))
+    for _ in range(3):      # weighted normal equations (weights 0 / 1, centred columns: well conditioned)
+        ku, kv, count = keep * du, keep * dv, keep.sum()
+        normal = np.array([[count, ku.sum(), kv.sum()], [0.0, ku @ du, ku @ dv], [0.0, 0.0, kv @ dv]])
+        normal += np.triu(normal, 1).T
+        try:
+            coefficients = np.linalg.solve(normal, np.array([keep @ samples, ku @ samples, kv @ samples]))
+        except np.linalg.LinAlgError:      # the kept pixels on one line: no gradient to take out
+            return value
+        residual = samples - coefficients[0] - coefficients[1] * du - coefficients[2] * dv
+        kept_residual = keep * residual
+        spread = np.sqrt(max(kept_residual @ residual / count - (kept_residual.sum() / count) ** 2, 0.0))
+        keep = (residual > -spread).astype(np.float64)
     h, w = value.shape
     trend = (coefficients[1] * (np.arange(w) - columns.mean())[None, :]
              + coefficients[2] * (np.arange(h) - rows.mean())[:, None])
     return np.clip(value - trend + 0.5, 0, 255).astype(np.uint8)
 
 
-def _within(inside, metric, keep):
-    """uint8 mask of the pixels of ``inside`` whose distance (``metric``) to the nearest pixel outside it, the
-    crop's border counting as outside, satisfies ``keep``."""
+def _rim(inside):
+    """uint8 mask of the pixels of ``inside`` within ``_RIM_DEPTH_PX`` (L2, 3x3 mask) of the nearest pixel outside
+    it, the crop's border counting as outside."""
     padded = cv2.copyMakeBorder(inside, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    distance = cv2.distanceTransform(padded, metric, 3)[1:-1, 1:-1]
-    return np.where((inside > 0) & keep(distance), 255, 0).astype(np.uint8)
+    distance = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
+    return cv2.bitwise_and(inside, cv2.compare(distance, _RIM_DEPTH_PX, cv2.CMP_LE))
 
 
 def _bright_region(value, saturation, inside, interior, threshold):

@@ -469,3 +469,47 @@ def test_a_close_top_face_brighter_at_one_end_is_still_split_from_its_side_face(
     face = vision.isolate_top_face(blob, hsv, config.top_face)
     assert cv2.contourArea(face) == pytest.approx(90 * 90, rel=0.03)
     assert cv2.pointPolygonTest(face, tuple(map(float, top[2] + [0, 8])), False) < 0     # the side face is out
+
+
+def _face_with_strip(strip_value=None, mark=False, ramp=False, size=80, strip_px=10):
+    """A green square face (V 150) on grey, its right-hand side face kept in the same colour class (a strip
+    ``strip_px`` wide of V ``strip_value``), or a dark printed line inside the face (``mark``), or the face
+    darkening smoothly towards its right edge (``ramp``); blurred. Returns (image, polygon of face + strip, the face's
+    right edge's u)."""
+    image = np.full((200, 200, 3), 120, np.uint8)
+    x0, y0 = 50, 60
+    x_face = x0 + size
+    image[y0:y0 + size, x0:x_face] = (40, 150, 40)
+    right = x_face
+    if strip_value is not None:
+        image[y0:y0 + size, x_face:x_face + strip_px] = (0, strip_value, 0)
+        right = x_face + strip_px
+    if mark:
+        image[y0 + 5:y0 + size - 5, x_face - 14:x_face - 11] = (20, 60, 20)
+    if ramp:
+        columns = np.arange(x0, x_face)
+        gain = np.clip(1.0 - 0.25 * (columns - (x_face - 12)) / 12.0, 0.75, 1.0)
+        image[y0:y0 + size, x0:x_face] = (image[y0:y0 + size, x0:x_face] * gain[None, :, None]).astype(np.uint8)
+    image = cv2.GaussianBlur(image, (5, 5), 1.0)
+    polygon = np.array([[x0, y0], [right, y0], [right, y0 + size], [x0, y0 + size]], float) - 0.5
+    return image, polygon, x_face - 0.5
+
+
+def test_a_side_face_kept_in_the_polygon_is_cut_off_along_its_crease(config):
+    """A side face lit almost like the top (V 135 against 150: 10 % darker, same colour class) and kept in the
+    polygon: the edge moves onto the crease between the two faces, the other edges stay."""
+    image, polygon, crease_u = _face_with_strip(strip_value=135)
+    cut = vision.cut_side_faces(image, polygon, config.side_face_cut)
+    assert np.abs(cut[:, 0].max() - crease_u) <= 1.0 and np.abs(cut[:, 0].min() - polygon[:, 0].min()) < 1e-9
+    assert np.allclose(np.sort(cut[:, 1]), np.sort(polygon[:, 1]), atol=1.0)
+
+
+@pytest.mark.parametrize('case', ['no strip', 'a printed line inside', 'shading towards the edge', 'too small'])
+def test_no_crease_no_cut(config, case):
+    """A face with nothing beside it, a dark line printed inside it (the strip before it as bright as the face),
+    a face darkening smoothly towards an edge (no step), and a face under ``min_size_px``: the polygon unchanged."""
+    if case == 'too small':
+        image, polygon, _ = _face_with_strip(strip_value=135, size=30, strip_px=5)
+    else:
+        image, polygon, _ = _face_with_strip(mark=case == 'a printed line inside', ramp=case.startswith('shading'))
+    assert np.array_equal(vision.cut_side_faces(image, polygon, config.side_face_cut), polygon)

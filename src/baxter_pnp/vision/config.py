@@ -57,6 +57,24 @@ class SubpixelConfig(Parameters):
     max_shift_px: float = 5.0
 
 
+@dataclass(frozen=True)
+class SideFaceConfig(Parameters):
+    """Side-face strips cut off along their crease (see ``sideface.cut_side_faces``): polygons of at least
+    ``min_size_px`` (square root of the area), creases up to ``max_depth_fraction`` of that inside an edge, a rise
+    of V across them of at least ``min_rise`` of the face's, in at least ``min_agreement`` of the profiles, the strip
+    at most ``max_strip_brightness`` of the face's V."""
+    enabled: bool = True
+    min_size_px: float = 40.0
+    max_depth_fraction: float = 0.35
+    min_rise: float = 0.03
+    min_agreement: float = 0.95
+    max_strip_brightness: float = 0.97
+
+    def validate(self):
+        self.require(0.0 < self.max_depth_fraction < 0.5, 'max_depth_fraction', 'must be in (0, 0.5)')
+        self.require(0.0 < self.max_strip_brightness < 1.0, 'max_strip_brightness', 'must be in (0, 1)')
+
+
 PIPELINES = ('chroma', 'thesis')
 
 
@@ -125,6 +143,7 @@ class VisionConfig(Parameters):
     flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
+    side_face_cut: SideFaceConfig = field(default_factory=SideFaceConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
     roi: RoiConfig = field(default_factory=RoiConfig)
 

@@ -16,6 +16,7 @@ from baxter_pnp.vision.colour import (colour_mask, dynamic_threshold, find_blobs
 from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, looks_round,
                                        merge_close_vertices, order_vertices, remove_cut_corners,
                                            remove_flat_vertices)
+from baxter_pnp.vision.sideface import cut_side_faces
 from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
@@ -186,7 +187,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
             outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
-            detection = _polygon_detection(image_bgr, outline, offset, colour, config)
+            detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2])
             if detection is None or detection.shape not in shapes:
                 continue
             if outline is not blob:
@@ -228,8 +229,9 @@ def colour_fill(mask, vertices_px):
     return cv2.countNonZero(cv2.bitwise_and(mask, inside)) / total if total else 0.0
 
 
-def _polygon_detection(image_bgr, outline, offset, colour, config):
-    """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None.
+def _polygon_detection(image_bgr, outline, offset, colour, config, value=None):
+    """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None;
+    ``value``: the region's V (HSV), if at hand (``sideface.cut_side_faces``).
 
     With the chroma pipeline a disc (``looks_round``, on the outline off the image border) is None; it is
     judged on the polygon before the corners that ``cut_corner_clear_area_fraction`` restores are (a disc's
@@ -248,8 +250,9 @@ def _polygon_detection(image_bgr, outline, offset, colour, config):
     shape = classify_shape(len(coarse))
     if shape is None:
         return None
-    coarse = fit_polygon_sides(outline, coarse)
-    coarse = coarse + offset
+    coarse = fit_polygon_sides(outline, coarse) + offset
+    if config.side_face_cut.enabled:
+        coarse = cut_side_faces(image_bgr, coarse, config.side_face_cut, value, offset)
     solidity = cv2.contourArea(outline) / max(cv2.contourArea(hull), 1e-9)
     if config.subpixel.enabled:
         vertices, rms, fallbacks = refine_vertices(image_bgr, coarse, config.subpixel)

@@ -1,0 +1,129 @@
+"""Side-face strips cut off a polygon along their crease (beyond the thesis): where a side face is lit almost as
+brightly as the top face, top-face isolation (``topface``) keeps it, and the polygon's edge on that side is the
+side face's bottom edge. The top face's edge is then a crease inside the polygon: a straight line nearly parallel
+to that edge (the two edges of a side face are parallel on the block), across which V rises from the strip to the
+face all along the edge, the strip darker than the face over its whole width. ``cut_side_faces`` finds such a
+crease for each edge and moves the edge onto it. Pixels (u, v) of the raw image; V = max(B, G, R) (OpenCV's HSV).
+"""
+import cv2
+import numpy as np
+
+from baxter_pnp.vision.polygon import intersect_lines
+
+_PROFILES = 14                                  # profiles across each edge, spread over its middle 70 %
+_STEP_PX = 0.5
+_START_PX = 2.5                                 # the first sample inward: clear of the outline's own blur
+_RISE_SPAN = 4                                  # samples (2 px) over which V rises across a crease
+_TILTS = np.linspace(-0.12, 0.12, 9)            # a crease's slope against the edge: perspective, up to ~7 deg
+_PRECHECK = 0.8                                 # slopes searched where straight profiles rise by this x min_rise
+
+
+def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
+    """``polygon`` (n, 2) (image px), its edges that bound a side-face strip moved onto the strip's crease (the
+    vertices are the new edge lines' intersections); the polygon itself when no edge has one, or when it is smaller than
+    ``config.min_size_px`` (square root of its area: on a small block a rim's shaded band or a row of pips looks
+    the same).
+
+    Per edge, V is sampled along lines at every depth (``_STEP_PX``) from ``_START_PX`` to ``config.max_depth_fraction``
+    of the polygon's size and at each slope of ``_TILTS``; the crease is the line across which the profiles' mean
+    rises most over 2 px. It counts when that rise is at least ``config.min_rise`` of the face's V, at least
+    ``config.min_agreement`` of the profiles rise across it, and the strip (every depth before it) is flat and
+    stays under ``config.max_strip_brightness`` of the face's V (after it): a side face, not the outline's blur, a
+    printed mark, a row of pips or a shadow's edge inside the face. The slopes are searched only on edges whose
+    profiles, taken straight, already rise by ``_PRECHECK`` of ``min_rise`` somewhere (most edges have no crease).
+    ``value``: the V (uint8) of a region of the image holding the polygon, whose top-left pixel is ``value_origin``
+    (the detection's HSV crop), else V is taken from ``image_bgr``."""
+    polygon = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    n = len(polygon)
+    following = np.arange(1, n + 1) % n
+    edges = polygon[following] - polygon
+    lengths = np.sqrt(edges[:, 0] ** 2 + edges[:, 1] ** 2)
+    area2 = float((polygon[:, 0] * polygon[following, 1] - polygon[following, 0] * polygon[:, 1]).sum())
+    size = np.sqrt(abs(area2) / 2.0)
+    reach = float(np.abs(_TILTS).max() * 0.35 * lengths.max())          # a tilted line's largest depth change
+    depths = np.arange(_START_PX + reach, config.max_depth_fraction * size - reach + 1e-9, _STEP_PX)
+    if size < config.min_size_px or len(depths) < 3 * _RISE_SPAN or np.any(lengths < 1e-6):
+        return polygon
+    directions = edges / lengths[:, None]
+    inward = (-1.0 if area2 >= 0 else 1.0) * directions[:, ::-1] * (1.0, -1.0)
+    value, origin = _value_around(image_bgr, polygon, value, np.asarray(value_origin))
+    along = ((0.15 + 0.7 * (np.arange(_PROFILES) + 0.5) / _PROFILES) - 0.5)[None, :] * lengths[:, None]   # (n, M)
+    centres = polygon + 0.5 * edges - origin                                                           # (n, 2)
+    straight = _profiles(value, centres, directions, inward, along, np.zeros((n, 1, _PROFILES)), depths)[:, 0]
+    mean = np.add.reduce(straight, axis=1) / _PROFILES                                                # (n, K)
+    candidates = np.nonzero((mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN]).max(axis=1)
+                            >= _PRECHECK * config.min_rise * mean.max(axis=1))[0]
+    if len(candidates) == 0:
+        return polygon
+    shifts = _TILTS[None, :, None] * along[candidates, None, :]                                       # (c, T, M)
+    profiles = _profiles(value, centres[candidates], directions[candidates], inward[candidates],
+                         along[candidates], shifts, depths)
+    points, lines = centres + origin, directions.copy()
+    found = False
+    for index, k in enumerate(candidates):
+        crease = _crease(profiles[index], depths, config)
+        if crease is not None:
+            tilt, depth = crease
+            points[k] = points[k] + depth * inward[k]
+            line = directions[k] + tilt * inward[k]
+            lines[k] = line / np.sqrt(line @ line)
+            found = True
+    if not found:
+        return polygon
+    previous = np.arange(-1, n - 1)
+    corners = intersect_lines(points[previous], lines[previous], points, lines)
+    moves = corners - polygon
+    if not np.isfinite(corners).all() or np.max(moves[:, 0] ** 2 + moves[:, 1] ** 2) > (0.5 * size) ** 2:
+        return polygon                  # nearly parallel neighbours: no corner where the lines would meet
+    return corners
+
+
+def _value_around(image_bgr, polygon, value, value_origin):
+    """(V (float32) of the image window holding ``polygon`` plus a margin, the window's origin (2,) in the image),
+    from ``value`` (a region's V, its origin ``value_origin``) when given, else from ``image_bgr``."""
+    if value is None:
+        value_origin = np.zeros(2, int)
+        h, w = image_bgr.shape[:2]
+    else:
+        h, w = value.shape[:2]
+    x0, y0 = np.maximum(np.floor(polygon.min(axis=0) - value_origin).astype(int) - 2, 0)
+    x1, y1 = np.minimum(np.ceil(polygon.max(axis=0) - value_origin).astype(int) + 3, (w, h))
+    if value is None:
+        window = image_bgr[y0:y1, x0:x1]
+        window = cv2.max(cv2.max(window[..., 0], window[..., 1]), window[..., 2])
+    else:
+        window = value[y0:y1, x0:x1]
+    return window.astype(np.float32), value_origin + (x0, y0)
+
+
+def _profiles(value, centres, directions, inward, along, shifts, depths):
+    """(c, T, M, K) V along each edge's lines: edge middle ``centres`` (c, 2) (window px), profiles ``along`` (c, M)
+    px from it, each line's depth ``depths`` (K,) at the middle plus ``shifts`` (c, T, M) px inward."""
+    sample_depths = (depths + shifts[..., None]).astype(np.float32)                             # (c, T, M, K)
+    feet = (centres[:, None, :] + along[..., None] * directions[:, None, :]).astype(np.float32)   # (c, M, 2)
+    inward = inward.astype(np.float32)
+    shape = sample_depths.shape
+    map_u = feet[:, None, :, None, 0] + sample_depths * inward[:, None, None, None, 0]
+    map_v = feet[:, None, :, None, 1] + sample_depths * inward[:, None, None, None, 1]
+    return cv2.remap(value, map_u.reshape(-1, shape[-1]), map_v.reshape(-1, shape[-1]), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(shape)
+
+
+def _crease(profiles, depths, config):
+    """(tilt, depth at the edge's middle (px)) of the crease in ``profiles`` (T, M, K), or None
+    (``cut_side_faces``)."""
+    mean = np.add.reduce(profiles, axis=1) / profiles.shape[1]                      # (T, K)
+    rises = mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN]                            # (T, K - span)
+    tilt, j = np.unravel_index(int(np.argmax(rises)), rises.shape)
+    crease = j + _RISE_SPAN // 2                                                    # index of the crease's depth
+    strip = mean[tilt, :max(crease - 1, 0)]
+    if len(strip) < _RISE_SPAN:
+        return None                     # no strip: the outline's own blur or a rim's shaded band
+    face = float(mean[tilt, crease + 2:].mean())
+    rise = float(rises[tilt, j])
+    agreement = float(np.mean(profiles[tilt, :, j + _RISE_SPAN] > profiles[tilt, :, j]))
+    if not (rise >= config.min_rise * face and agreement >= config.min_agreement
+            and float(strip.max()) <= config.max_strip_brightness * face
+            and float(strip.max() - strip.min()) <= 0.5 * rise):      # a flat strip, not a ramp from the outline
+        return None
+    return _TILTS[tilt], depths[crease]

@@ -504,12 +504,17 @@ def test_a_side_face_kept_in_the_polygon_is_cut_off_along_its_crease(config):
     assert np.allclose(np.sort(cut[:, 1]), np.sort(polygon[:, 1]), atol=1.0)
 
 
-@pytest.mark.parametrize('case', ['no strip', 'a printed line inside', 'shading towards the edge', 'too small'])
+@pytest.mark.parametrize('case', ['no strip', 'a printed line inside', 'shading towards the edge', 'too small',
+                                  'a shadow across block and table'])
 def test_no_crease_no_cut(config, case):
     """A face with nothing beside it, a dark line printed inside it (the strip before it as bright as the face),
-    a face darkening smoothly towards an edge (no step), and a face under ``min_size_px``: the polygon unchanged."""
+    a face darkening smoothly towards an edge (no step), a face under ``min_size_px``, and the sharp edge of a
+    shadow parallel to an edge, across the face and the table around it: the polygon unchanged."""
     if case == 'too small':
         image, polygon, _ = _face_with_strip(strip_value=135, size=30, strip_px=5)
+    elif case.startswith('a shadow'):
+        image, polygon, _ = _face_with_strip()
+        image[:, 118:] = (image[:, 118:] * 0.85).astype(np.uint8)          # the shadow: x >= 118, face and table
     else:
         image, polygon, _ = _face_with_strip(mark=case == 'a printed line inside', ramp=case.startswith('shading'))
     assert np.array_equal(vision.cut_side_faces(image, polygon, config.side_face_cut), polygon)

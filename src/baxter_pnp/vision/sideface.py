@@ -2,8 +2,9 @@
 brightly as the top face, top-face isolation (``topface``) keeps it, and the polygon's edge on that side is the
 side face's bottom edge. The top face's edge is then a crease inside the polygon: a straight line nearly parallel
 to that edge (the two edges of a side face are parallel on the block), across which V rises from the strip to the
-face all along the edge, the strip darker than the face over its whole width. ``cut_side_faces`` finds such a
-crease for each edge and moves the edge onto it. Pixels (u, v) of the raw image; V = max(B, G, R) (OpenCV's HSV).
+face all along the edge, the strip darker than the face over its whole width, and which ends at the block's
+outline (a shadow's edge goes on across the table). ``cut_side_faces`` finds such a crease for each edge and moves
+the edge onto it. Pixels (u, v) of the raw image; V = max(B, G, R) (OpenCV's HSV).
 """
 import cv2
 import numpy as np
@@ -16,6 +17,8 @@ _START_PX = 2.5                                 # the first sample inward: clear
 _RISE_SPAN = 4                                  # samples (2 px) over which V rises across a crease
 _TILTS = np.linspace(-0.12, 0.12, 9)            # a crease's slope against the edge: perspective, up to ~7 deg
 _PRECHECK = 0.8                                 # slopes searched where straight profiles rise by this x min_rise
+_TABLE_REACH_PX = (4.0, 7.0, 10.0)              # the table sampled this far beyond a crease's ends ...
+_TABLE_SIDE_PX = 3.0                            # ... this far to either side of its line (_shadow_edge)
 
 
 def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
@@ -62,12 +65,16 @@ def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
     found = False
     for index, k in enumerate(candidates):
         crease = _crease(profiles[index], depths, config)
-        if crease is not None:
-            tilt, depth = crease
-            points[k] = points[k] + depth * inward[k]
-            line = directions[k] + tilt * inward[k]
-            lines[k] = line / np.sqrt(line @ line)
-            found = True
+        if crease is None:
+            continue
+        tilt, depth = crease
+        line = directions[k] + tilt * inward[k]
+        line = line / np.sqrt(line @ line)
+        point = points[k] + depth * inward[k]
+        if _shadow_edge(value, origin, polygon, k, point, line, inward[k], config):
+            continue
+        points[k], lines[k] = point, line
+        found = True
     if not found:
         return polygon
     previous = np.arange(-1, n - 1)
@@ -86,14 +93,38 @@ def _value_around(image_bgr, polygon, value, value_origin):
         h, w = image_bgr.shape[:2]
     else:
         h, w = value.shape[:2]
-    x0, y0 = np.maximum(np.floor(polygon.min(axis=0) - value_origin).astype(int) - 2, 0)
-    x1, y1 = np.minimum(np.ceil(polygon.max(axis=0) - value_origin).astype(int) + 3, (w, h))
+    margin = int(max(_TABLE_REACH_PX) + _TABLE_SIDE_PX + 2)
+    x0, y0 = np.maximum(np.floor(polygon.min(axis=0) - value_origin).astype(int) - margin, 0)
+    x1, y1 = np.minimum(np.ceil(polygon.max(axis=0) - value_origin).astype(int) + margin + 1, (w, h))
     if value is None:
         window = image_bgr[y0:y1, x0:x1]
         window = cv2.max(cv2.max(window[..., 0], window[..., 1]), window[..., 2])
     else:
         window = value[y0:y1, x0:x1]
     return window.astype(np.float32), value_origin + (x0, y0)
+
+
+def _shadow_edge(value, origin, polygon, k, point, line, inward, config):
+    """True when, beyond both ends of the crease (``point``, unit ``line``, image px) found inside edge ``k``
+    (``inward``: its inward normal), the table is darker on the strip's side of the line's extension too (at most
+    ``config.max_strip_brightness`` of the other side): the edge of a shadow across block and table (the arm's, a
+    cup's), not a crease, which ends at the block's outline."""
+    n = len(polygon)
+    ends = []
+    for a, b, outward in ((polygon[k - 1], polygon[k], -1.0), (polygon[(k + 1) % n], polygon[(k + 2) % n], 1.0)):
+        side = b - a                                             # the neighbouring edge the crease ends on
+        cross = line[0] * side[1] - line[1] * side[0]
+        if abs(cross) < 1e-9:
+            return False
+        t = ((a[0] - point[0]) * side[1] - (a[1] - point[1]) * side[0]) / cross
+        ends.append((point + t * line, outward))
+    reach = np.array(_TABLE_REACH_PX)
+    beyond = np.concatenate([end + outward * reach[:, None] * line for end, outward in ends])        # (2R, 2)
+    samples = np.concatenate([beyond - _TABLE_SIDE_PX * inward, beyond + _TABLE_SIDE_PX * inward]) - origin
+    table = cv2.remap(value, samples[None, :, 0].astype(np.float32), samples[None, :, 1].astype(np.float32),
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+    strip_side, face_side = table[:len(beyond)].mean(), table[len(beyond):].mean()
+    return bool(strip_side <= config.max_strip_brightness * face_side)
 
 
 def _profiles(value, centres, directions, inward, along, shifts, depths):

@@ -6,10 +6,9 @@ face's normal pointing up (away from the table); top-face vertex k (k = 0..n-1) 
 counter-clockwise about +z and, for a square, the edges are parallel to x and y. Lengths in metres,
 angles in radians.
 """
-import functools
 import math
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -59,7 +58,7 @@ class PolygonModel:
         return vertices
 
 
-@functools.lru_cache(maxsize=64)
+@lru_cache(maxsize=64)
 def model_for(shape, side, height=0.02):
     """The ``PolygonModel`` of a ``shape`` block with side ``side`` (m) and height ``height`` (m) (one instance per
     arguments: a model is immutable, and its vertices are computed once)."""

@@ -66,6 +66,8 @@ def test_default_config_is_the_thesis_pipeline(config):
     ({'subpixel': {'enabled': 'yes'}}, 'subpixel.enabled: must be true or false'),
     ({'subpixel': {'passes': 1.5}}, r'subpixel.passes: must be an integer \(got 1.5\)'),
     ({'roi': {'downsample': 0}}, 'roi.downsample: must be >= 1'),
+    ({'side_face_cut': {'max_depth_fraction': 0.6}}, r'side_face_cut.max_depth_fraction: must be in \(0, 0.5\)'),
+    ({'side_face_cut': {'min_agreement': 0}}, r'side_face_cut.min_agreement: must be in \(0, 1\]'),
 ])
 def test_config_errors_name_the_bad_key(tmp_path, change, message):
     path = tmp_path / 'vision.yaml'

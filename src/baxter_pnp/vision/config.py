@@ -66,12 +66,15 @@ class SideFaceConfig(Parameters):
     enabled: bool = True
     min_size_px: float = 40.0
     max_depth_fraction: float = 0.35
-    min_rise: float = 0.03
+    min_rise: float = 0.04
     min_agreement: float = 0.95
-    max_strip_brightness: float = 0.97
+    max_strip_brightness: float = 0.96
 
     def validate(self):
+        self.require(self.min_size_px >= 0.0, 'min_size_px', 'must be >= 0')
         self.require(0.0 < self.max_depth_fraction < 0.5, 'max_depth_fraction', 'must be in (0, 0.5)')
+        self.require(self.min_rise > 0.0, 'min_rise', 'must be > 0')
+        self.require(0.0 < self.min_agreement <= 1.0, 'min_agreement', 'must be in (0, 1]')
         self.require(0.0 < self.max_strip_brightness < 1.0, 'max_strip_brightness', 'must be in (0, 1)')
 
 

@@ -9,6 +9,7 @@ units; hue angles in degrees (0 = +a*, 90 = +b*). Images indexed [row, column].
 """
 import dataclasses
 import functools
+import math
 
 import cv2
 import numpy as np
@@ -77,9 +78,9 @@ def balanced_lab(image_bgr, gains):
     return cv2.cvtColor(balanced_bgr(image_bgr, gains), cv2.COLOR_BGR2LAB)
 
 
-def class_masks(lab, classes, extra_chroma=0.0):
+def class_masks(lab, classes, extra_chroma=0.0, floor_fraction=1.0):
     """{name: uint8 mask (255 inside)} of the pixels of the 8-bit CIELAB image ``lab`` in each ``ColourClass``,
-    every class's chroma floor raised by ``extra_chroma`` (rounded to a whole unit)."""
+    every class's chroma floor times ``floor_fraction`` and raised by ``extra_chroma`` (rounded to a whole unit)."""
     extra = float(round(extra_chroma))
     ab_index = (lab[..., 1].astype(np.int32) << 8) | lab[..., 2]
     bright = {}
@@ -88,10 +89,17 @@ def class_masks(lab, classes, extra_chroma=0.0):
         floor = colour_class.min_lightness
         if floor not in bright:
             bright[floor] = cv2.threshold(lab[..., 0], floor * _LAB_SCALE - 1e-6, 255, cv2.THRESH_BINARY)[1]
-        if extra > 0:
-            colour_class = dataclasses.replace(colour_class, min_chroma=colour_class.min_chroma + extra)
-        masks[name] = cv2.bitwise_and(np.take(_ab_table(colour_class), ab_index), bright[floor])
+        table = _ab_table(_with_floor(colour_class, floor_fraction, extra))
+        masks[name] = cv2.bitwise_and(np.take(table, ab_index), bright[floor])
     return masks
+
+
+@functools.lru_cache(maxsize=64)
+def _with_floor(colour_class, floor_fraction, extra):
+    """``colour_class`` with its chroma floor times ``floor_fraction`` plus ``extra`` (cached: called per region)."""
+    if floor_fraction == 1.0 and extra == 0.0:
+        return colour_class
+    return dataclasses.replace(colour_class, min_chroma=colour_class.min_chroma * floor_fraction + extra)
 
 
 @functools.lru_cache(maxsize=32)
@@ -140,3 +148,14 @@ def learn_colour_class(image_bgr, roi, config, min_sample_chroma=10.0):
             float(np.clip(3.0 * spread, 10.0, 60.0)),
             float(max(15.0, 0.5 * np.percentile(chroma[coloured], 5))),
             float(max(3.0, 0.5 * np.percentile(lightness[coloured], 5))))
+
+
+def hue_contrast(lab, inside, around, hue_deg):
+    """Median chroma along ``hue_deg`` (CIELAB units: a*b* projected on that hue's direction) of the pixels of the
+    8-bit CIELAB image ``lab`` where ``inside`` is set, less that of the pixels where ``around`` is set."""
+    direction = np.array([math.cos(math.radians(hue_deg)), math.sin(math.radians(hue_deg))], np.float32)
+
+    def along(mask):
+        ab = lab[mask > 0][:, 1:].astype(np.float32) - 128.0
+        return float(np.median(ab @ direction)) if len(ab) else 0.0
+    return along(inside) - along(around)

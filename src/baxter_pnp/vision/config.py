@@ -103,17 +103,25 @@ class ChromaConfig(Parameters):
     the colour ``classes``, and ``min_fill``: the least fraction of a detected polygon its colour covers
     (a die's pips leave most of its face; a yellow box with a red button in it does not); ``max_residual_cast``:
     the chroma of a cast the white balance could not remove (``chroma.white_balance``) beyond which every class's
-    chroma floor is raised by the excess."""
+    chroma floor is raised by the excess; ``weak_*``: a second, weaker floor for faces too dim for a class's own,
+    trusted only on a balanced image, for blobs that stand out from their surroundings and make good polygons
+    (``detection._weak_detections``)."""
     white_balance: bool = True
     max_gain: float = 2.0
     max_residual_cast: float = 5.0
     min_fill: float = 0.7
+    weak_floor_fraction: float = 0.7
+    weak_min_contrast: float = 16.0
+    weak_min_quality: float = 0.3
     classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(150.0, 40.0, 19.0)})
 
     def validate(self):
         self.require(self.max_gain >= 1.0, 'max_gain', 'must be >= 1')
         self.require(0.0 <= self.min_fill <= 1.0, 'min_fill', 'must be in [0, 1]')
         self.require(self.max_residual_cast >= 0.0, 'max_residual_cast', 'must be >= 0')
+        self.require(0.0 < self.weak_floor_fraction <= 1.0, 'weak_floor_fraction', 'must be in (0, 1] (1 = off)')
+        self.require(self.weak_min_contrast >= 0.0, 'weak_min_contrast', 'must be >= 0')
+        self.require(0.0 <= self.weak_min_quality <= 1.0, 'weak_min_quality', 'must be in [0, 1]')
         self.require(bool(self.classes), 'classes', 'must define at least one colour')
 
 

@@ -21,6 +21,8 @@ from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
 _TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
+_RING_INNER = np.ones((5, 5), np.uint8)     # _weak_detections: the ring a blob's colour is compared with lies
+_RING_OUTER = np.ones((13, 13), np.uint8)   # 3-6 px around it (dilations by these kernels)
 
 
 @dataclass
@@ -104,6 +106,7 @@ class ColourSegmenter:
         self._threshold = None
         self._gains = None
         self._extra_chroma = 0.0
+        self.last_lab = None
 
     def adapt(self, image_bgr):
         """Take the image-wide quantities (threshold or white balance) from ``image_bgr`` (any scale)."""
@@ -113,12 +116,25 @@ class ColourSegmenter:
         else:
             self._threshold = dynamic_threshold(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self.config)
 
-    def masks(self, image_bgr, colours=None):
-        """{colour: uint8 mask (255 inside)} of ``image_bgr`` (a region of the adapted image) for ``colours``."""
+    @property
+    def balanced(self):
+        """True when the white balance left no cast beyond ``max_residual_cast`` (chroma pipeline, once adapted)."""
+        return self._extra_chroma == 0.0
+
+    @property
+    def weak_tier(self):
+        """True when ``_weak_detections`` runs: the chroma pipeline, its weaker floor on, the image balanced."""
+        return self.config.pipeline == 'chroma' and self.config.chroma.weak_floor_fraction < 1.0 and self.balanced
+
+    def masks(self, image_bgr, colours=None, floor_fraction=1.0):
+        """{colour: uint8 mask (255 inside)} of ``image_bgr`` (a region of the adapted image) for ``colours``
+        (chroma floors times ``floor_fraction``); with the chroma pipeline, the region's balanced CIELAB image is
+        kept as ``last_lab``."""
         colours = self.colours if colours is None else [c for c in self.colours if c in colours]
         if self.config.pipeline == 'chroma':
-            lab = chroma.balanced_lab(image_bgr, self._gains)
-            return chroma.class_masks(lab, {c: self.config.chroma.classes[c] for c in colours}, self._extra_chroma)
+            self.last_lab = chroma.balanced_lab(image_bgr, self._gains)
+            return chroma.class_masks(self.last_lab, {c: self.config.chroma.classes[c] for c in colours},
+                                      self._extra_chroma, floor_fraction)
         oversaturated = oversaturated_hsv(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._threshold, self.config)
         return {c: colour_mask(oversaturated, self.config.colours[c]) for c in colours}
 
@@ -126,8 +142,9 @@ class ColourSegmenter:
 def _candidate_regions(image_bgr, segmenter, config):
     """The regions ``((x0, y0, x1, y1), colours)`` to search, ``segmenter`` adapted to the image on the way.
 
-    Runs the colour stage on the image subsampled by ``roi.downsample`` (nearest pixel); each blob of a
-    colour gives a box padded by ``roi.padding_px``; overlapping boxes are merged (with their
+    Runs the colour stage on the image subsampled by ``roi.downsample`` (nearest pixel; at the weaker floor when
+    ``segmenter.weak_tier``); each blob of a colour gives a box padded by ``roi.padding_px``; overlapping boxes are
+    merged (with their
     colours) so that every blob lies whole inside exactly one region.
     """
     f = config.roi.downsample
@@ -136,7 +153,8 @@ def _candidate_regions(image_bgr, segmenter, config):
     segmenter.adapt(small)
     pad = config.roi.padding_px
     boxes = []
-    for colour, mask in segmenter.masks(small).items():
+    floor_fraction = config.chroma.weak_floor_fraction if segmenter.weak_tier else 1.0
+    for colour, mask in segmenter.masks(small, floor_fraction=floor_fraction).items():
         if not cv2.countNonZero(mask):
             continue
         _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -180,6 +198,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
     hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
     offset = np.array([x0, y0])
     detections = []
+    discs = []
     for colour, raw_mask in segmenter.masks(crop, colours).items():
         if not cv2.countNonZero(raw_mask):
             continue
@@ -187,7 +206,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
             outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
-            detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2])
+            detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2], discs)
             if detection is None or detection.shape not in shapes:
                 continue
             if outline is not blob:
@@ -196,7 +215,63 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
                     and colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
                 continue
             detections.append(detection)
+    if segmenter.weak_tier:      # the weaker floor where the class's own found nothing, or only poor polygons
+        good = {d.colour for d in detections if d.quality >= config.chroma.weak_min_quality}
+        for colour in [c for c in segmenter.colours if c in colours and c not in good]:
+            detections = _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, detections, discs, shapes,
+                                               config)
     return detections
+
+
+def _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, found, discs, shapes, config):
+    """``found`` (the region's detections) with those of ``colour`` at the weaker floor: a face too dim for its
+    class's floor (a dark die on a dark table) is segmented at ``weak_floor_fraction`` of it (``ChromaConfig``).
+
+    A blob of that weaker mask counts when it overlaps no detection of another colour, no refused disc (``discs``,
+    region coordinates) and only detections of ``colour`` of lower quality (the fragments of a face the floor cut
+    up), which it then replaces; when its median chroma along the class's hue exceeds that of a ring 3-6 px around
+    it by ``weak_min_contrast`` (a dim block on a grey table stands 16-27 above it; the tinted black print and
+    chessboard squares of the real frames 2-14 above theirs); and when its polygon has ``weak_min_quality``
+    (cables, tinted shadows: 0.08-0.34) and the usual colour fill on the weaker mask. ``segmenter.last_lab``:
+    the region's balanced CIELAB image (``ColourSegmenter.masks``)."""
+    lab = segmenter.last_lab
+    colour_class = config.chroma.classes[colour]
+    weak = chroma.class_masks(lab, {colour: colour_class}, floor_fraction=config.chroma.weak_floor_fraction)[colour]
+    if not cv2.countNonZero(weak):
+        return found
+    claimed = np.zeros(weak.shape, np.uint8)
+    cv2.drawContours(claimed, discs, -1, 255, cv2.FILLED)
+    for d in found:
+        if d.colour != colour:
+            cv2.fillPoly(claimed, [np.round(d.vertices_px - offset).astype(np.int32)], 255)
+    mask = open_close(weak, config.morphology_kernel_px)
+    binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
+    for blob in find_blobs(binary, config.min_area_px):
+        inside = np.zeros(weak.shape, np.uint8)
+        cv2.drawContours(inside, [blob], -1, 255, cv2.FILLED)
+        if cv2.countNonZero(cv2.bitwise_and(inside, claimed)):
+            continue
+        fragments = [d for d in found if d.colour == colour and inside[_pixel(d.centroid_px - offset, inside)]]
+        around = cv2.subtract(cv2.dilate(inside, _RING_OUTER), cv2.dilate(inside, _RING_INNER))
+        if chroma.hue_contrast(lab, inside, around, colour_class.hue_deg) < config.chroma.weak_min_contrast:
+            continue
+        outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
+        detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2])
+        if detection is None or detection.shape not in shapes:
+            continue
+        if outline is not blob:
+            detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))
+        if (detection.quality < max([config.chroma.weak_min_quality] + [d.quality for d in fragments])
+                or colour_fill(weak, detection.vertices_px - offset) < config.chroma.min_fill):
+            continue
+        found = [d for d in found if all(d is not f for f in fragments)] + [detection]
+    return found
+
+
+def _pixel(point_px, image):
+    """(row, column) of the pixel of ``image`` nearest ``point_px`` (u, v), clipped to the image."""
+    h, w = image.shape[:2]
+    return min(max(int(round(point_px[1])), 0), h - 1), min(max(int(round(point_px[0])), 0), w - 1)
 
 
 def blob_detection(image_bgr, detection, config, shape=None):
@@ -229,7 +304,7 @@ def colour_fill(mask, vertices_px):
     return cv2.countNonZero(cv2.bitwise_and(mask, inside)) / total if total else 0.0
 
 
-def _polygon_detection(image_bgr, outline, offset, colour, config, value=None):
+def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, discs=None):
     """Detection of the top-face ``outline`` (contour in region coordinates, ``offset`` = region origin), or None;
     ``value``: the region's V (HSV), if at hand (``sideface.cut_side_faces``).
 
@@ -244,6 +319,8 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None):
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
     coarse = remove_flat_vertices(coarse, config.flat_vertex_area_fraction)
     if config.pipeline == 'chroma' and looks_round(_off_the_border(outline, offset, image_bgr.shape), coarse):
+        if discs is not None:
+            discs.append(outline)
         return None
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction,
                                 config.cut_corner_clear_max_size_px)

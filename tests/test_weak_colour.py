@@ -1,0 +1,111 @@
+"""The chroma pipeline's weaker floor (``ChromaConfig.weak_*``, ``detection._weak_detections``): a face too dim for
+its class's chroma floor is found when it stands out from a grey table, and not when its surroundings carry the
+same tint (a tinted black print) or when it is a refused disc."""
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from baxter_pnp import vision
+from baxter_pnp.vision import config as config_module
+
+BLUE_HUE_DEG = 285.0
+
+
+def lab_image(size=(240, 320), lightness=50.0):
+    """An 8-bit CIELAB image (OpenCV's scales) of a grey table of L* ``lightness``."""
+    lab = np.empty(size + (3,), np.float32)
+    lab[..., 0], lab[..., 1], lab[..., 2] = lightness * 255.0 / 100.0, 128.0, 128.0
+    return lab
+
+
+def paint(lab, mask, lightness, chroma, hue_deg=BLUE_HUE_DEG):
+    lab[mask > 0] = (lightness * 255.0 / 100.0, 128.0 + chroma * np.cos(np.radians(hue_deg)),
+                     128.0 + chroma * np.sin(np.radians(hue_deg)))
+
+
+def to_bgr(lab, seed=0):
+    """The camera's view of ``lab``: BGR, blurred (sigma 0.8 px), with a little noise."""
+    bgr = cv2.cvtColor(np.clip(np.round(lab), 0, 255).astype(np.uint8), cv2.COLOR_LAB2BGR).astype(np.float32)
+    bgr = cv2.GaussianBlur(bgr, (0, 0), 0.8) + np.random.default_rng(seed).normal(0.0, 1.0, bgr.shape)
+    return np.clip(np.round(bgr), 0, 255).astype(np.uint8)
+
+
+def square_mask(size=(240, 320), centre=(160, 120), half=14, angle_deg=20.0):
+    box = cv2.boxPoints((centre, (2 * half, 2 * half), angle_deg))
+    mask = np.zeros(size, np.uint8)
+    cv2.fillPoly(mask, [np.round(box * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
+    return mask
+
+
+def with_chroma(config, **changes):
+    return dataclasses.replace(config, chroma=dataclasses.replace(config.chroma, **changes))
+
+
+@pytest.fixture(scope='module')
+def config():
+    return vision.VisionConfig.from_yaml()
+
+
+def test_the_yaml_turns_the_weaker_floor_on(config):
+    floor = config.chroma.classes['blue'].min_chroma
+    assert config.chroma.weak_floor_fraction * floor < 17.0 < floor
+
+
+def test_a_dim_face_on_a_grey_table_is_found_below_its_class_floor(config):
+    """A dark blue square of chroma 17 (blue's floor: 20) on a mid-grey table: found only with the weaker floor."""
+    lab = lab_image()
+    paint(lab, square_mask(), lightness=22.0, chroma=17.0)
+    image = to_bgr(lab)
+    found = vision.detect(image, config)
+    assert [(d.colour, d.shape) for d in found] == [('blue', 'square')]
+    assert np.linalg.norm(found[0].centroid_px - (160, 120)) < 1.0
+    assert vision.detect(image, with_chroma(config, weak_floor_fraction=1.0)) == []
+
+
+def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
+    """The same square on a patch tinted towards blue (chroma 9, under the weaker floor): it stands 8 above its
+    surroundings, under ``weak_min_contrast``, as the real frames' black print on a bluish board does."""
+    lab = lab_image()
+    patch = np.zeros(lab.shape[:2], np.uint8)
+    patch[60:180, 90:230] = 255
+    paint(lab, patch, lightness=30.0, chroma=9.0)
+    paint(lab, square_mask(), lightness=22.0, chroma=17.0)
+    image = to_bgr(lab)
+    assert vision.detect(image, config) == []
+    assert [d.colour for d in vision.detect(image, with_chroma(config, weak_min_contrast=5.0))] == ['blue']
+
+
+def test_a_refused_disc_is_not_found_again_at_the_weaker_floor(config):
+    """A blue disc (over the floor, refused as round) in a dimmer ring of its colour: the weaker mask's blob, disc
+    and ring, would be a polygon; it is the disc's, so it is left alone."""
+    lab = lab_image()
+    ring = np.zeros(lab.shape[:2], np.uint8)
+    cv2.rectangle(ring, (135, 95), (185, 145), 255, cv2.FILLED)
+    paint(lab, ring, lightness=25.0, chroma=16.0)
+    disc = np.zeros(lab.shape[:2], np.uint8)
+    cv2.circle(disc, (160, 120), 18, 255, cv2.FILLED)
+    paint(lab, disc, lightness=30.0, chroma=30.0)
+    image = to_bgr(lab)
+    assert vision.detect(image, with_chroma(config, weak_floor_fraction=1.0)) == []
+    assert vision.detect(image, config) == []
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'weak_floor_fraction': 0.0}, r'weak_floor_fraction: must be in \(0, 1\]'),
+    ({'weak_floor_fraction': 1.5}, r'weak_floor_fraction: must be in \(0, 1\]'),
+    ({'weak_min_contrast': -1.0}, 'weak_min_contrast: must be >= 0'),
+    ({'weak_min_quality': 1.2}, r'weak_min_quality: must be in \[0, 1\]')])
+def test_bad_weak_parameters_are_refused(tmp_path, change, message):
+    path = tmp_path / 'vision.yaml'
+    path.write_text(yaml.safe_dump({'chroma': change}))
+    with pytest.raises(ValueError, match=f'chroma.{message}'):
+        vision.VisionConfig.from_yaml(str(path))
+
+
+def test_the_code_defaults_are_the_yaml_values(config):
+    defaults = config_module.ChromaConfig()
+    assert [getattr(defaults, f) for f in ('weak_floor_fraction', 'weak_min_contrast', 'weak_min_quality')] == [
+        getattr(config.chroma, f) for f in ('weak_floor_fraction', 'weak_min_contrast', 'weak_min_quality')]

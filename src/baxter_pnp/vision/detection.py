@@ -106,7 +106,6 @@ class ColourSegmenter:
         self._threshold = None
         self._gains = None
         self._extra_chroma = 0.0
-        self.last_lab = None
 
     def adapt(self, image_bgr):
         """Take the image-wide quantities (threshold or white balance) from ``image_bgr`` (any scale)."""
@@ -126,14 +125,16 @@ class ColourSegmenter:
         """True when ``_weak_detections`` runs: the chroma pipeline, its weaker floor on, the image balanced."""
         return self.config.pipeline == 'chroma' and self.config.chroma.weak_floor_fraction < 1.0 and self.balanced
 
+    def lab(self, image_bgr):
+        """``image_bgr`` (a region of the adapted image) white-balanced, in 8-bit CIELAB (chroma pipeline)."""
+        return chroma.balanced_lab(image_bgr, self._gains)
+
     def masks(self, image_bgr, colours=None, floor_fraction=1.0):
         """{colour: uint8 mask (255 inside)} of ``image_bgr`` (a region of the adapted image) for ``colours``
-        (chroma floors times ``floor_fraction``); with the chroma pipeline, the region's balanced CIELAB image is
-        kept as ``last_lab``."""
+        (chroma floors times ``floor_fraction``)."""
         colours = self.colours if colours is None else [c for c in self.colours if c in colours]
         if self.config.pipeline == 'chroma':
-            self.last_lab = chroma.balanced_lab(image_bgr, self._gains)
-            return chroma.class_masks(self.last_lab, {c: self.config.chroma.classes[c] for c in colours},
+            return chroma.class_masks(self.lab(image_bgr), {c: self.config.chroma.classes[c] for c in colours},
                                       self._extra_chroma, floor_fraction)
         oversaturated = oversaturated_hsv(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._threshold, self.config)
         return {c: colour_mask(oversaturated, self.config.colours[c]) for c in colours}
@@ -205,25 +206,20 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
         mask = open_close(raw_mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
-            outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
-            detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2], discs)
-            if detection is None or detection.shape not in shapes:
-                continue
-            if outline is not blob:
-                detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))
-            if (config.pipeline == 'chroma'
-                    and colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
+            detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs)
+            if detection is None or (config.pipeline == 'chroma' and colour_fill(
+                    raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
                 continue
             detections.append(detection)
     if segmenter.weak_tier:      # the weaker floor where the class's own found nothing, or only poor polygons
         good = {d.colour for d in detections if d.quality >= config.chroma.weak_min_quality}
+        lab = segmenter.lab(crop) if set(colours) - good else None
         for colour in [c for c in segmenter.colours if c in colours and c not in good]:
-            detections = _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, detections, discs, shapes,
-                                               config)
+            detections = _with_weak_detections(image_bgr, lab, colour, offset, hsv, detections, discs, shapes, config)
     return detections
 
 
-def _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, found, discs, shapes, config):
+def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, shapes, config):
     """``found`` (the region's detections) with those of ``colour`` at the weaker floor: a face too dim for its
     class's floor (a dark die on a dark table) is segmented at ``weak_floor_fraction`` of it (``ChromaConfig``).
 
@@ -232,9 +228,8 @@ def _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, found, disc
     up), which it then replaces; when its median chroma along the class's hue exceeds that of a ring 3-6 px around
     it by ``weak_min_contrast`` (a dim block on a grey table stands 16-27 above it; the tinted black print and
     chessboard squares of the real frames 2-14 above theirs); and when its polygon has ``weak_min_quality``
-    (cables, tinted shadows: 0.08-0.34) and the usual colour fill on the weaker mask. ``segmenter.last_lab``:
-    the region's balanced CIELAB image (``ColourSegmenter.masks``)."""
-    lab = segmenter.last_lab
+    (cables, tinted shadows: 0.08-0.34) and the usual colour fill on the weaker mask. ``lab``: the region's
+    balanced CIELAB image (``ColourSegmenter.lab``); ``hsv``: its HSV; ``offset``: its origin in the image."""
     colour_class = config.chroma.classes[colour]
     weak = chroma.class_masks(lab, {colour: colour_class}, floor_fraction=config.chroma.weak_floor_fraction)[colour]
     if not cv2.countNonZero(weak):
@@ -255,17 +250,26 @@ def _with_weak_detections(image_bgr, segmenter, colour, offset, hsv, found, disc
         around = cv2.subtract(cv2.dilate(inside, _RING_OUTER), cv2.dilate(inside, _RING_INNER))
         if chroma.hue_contrast(lab, inside, around, colour_class.hue_deg) < config.chroma.weak_min_contrast:
             continue
-        outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
-        detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2])
-        if detection is None or detection.shape not in shapes:
-            continue
-        if outline is not blob:
-            detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))
-        if (detection.quality < max([config.chroma.weak_min_quality] + [d.quality for d in fragments])
+        detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes)
+        least_quality = max([config.chroma.weak_min_quality] + [d.quality for d in fragments])
+        if (detection is None or detection.quality < least_quality
                 or colour_fill(weak, detection.vertices_px - offset) < config.chroma.min_fill):
             continue
         found = [d for d in found if all(d is not f for f in fragments)] + [detection]
     return found
+
+
+def _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs=None):
+    """The detection of ``blob`` (a contour in the region whose origin is ``offset`` and whose HSV is ``hsv``): its
+    top face's polygon (``_polygon_detection``), with the blob's outline when the face was split off it; None when
+    there is none or its shape is not in ``shapes``."""
+    outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
+    detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2], discs)
+    if detection is None or detection.shape not in shapes:
+        return None
+    if outline is not blob:
+        detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))
+    return detection
 
 
 def _pixel(point_px, image):

@@ -28,9 +28,12 @@ def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
     the same).
 
     Per edge, V is sampled along lines at every depth (``_STEP_PX``) from ``_START_PX`` to ``config.max_depth_fraction``
-    of the polygon's size and at each slope of ``_TILTS``; the crease is the line across which the profiles' mean
-    rises most over 2 px. It counts when that rise is at least ``config.min_rise`` of the face's V, at least
-    ``config.min_agreement`` of the profiles rise across it, and the strip (every depth before it) is flat and
+    of the polygon's size and at each slope of ``_TILTS``, a sloped line only where it stays in that band all along
+    the edge; the crease is the line across which the profiles' mean rises most over 2 px, sought first in the band
+    every slope stays in, then (none found there) at every depth a slope allows: a strip narrower than the slopes'
+    reach (6 px beside a 100 px face, a block near the camera) lies there. It counts when that rise is at least
+    ``config.min_rise`` of the face's V, at least ``config.min_agreement`` of the profiles rise across it, and the
+    strip (every depth before it) is flat and
     stays under ``config.max_strip_brightness`` of the face's V (after it): a side face, not the outline's blur, a
     printed mark, a row of pips or a shadow's edge inside the face. The slopes are searched only on edges whose
     profiles, taken straight, already rise by ``_PRECHECK`` of ``min_rise`` somewhere (most edges have no crease).
@@ -43,10 +46,12 @@ def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
     lengths = np.sqrt(edges[:, 0] ** 2 + edges[:, 1] ** 2)
     area2 = float((polygon[:, 0] * polygon[following, 1] - polygon[following, 0] * polygon[:, 1]).sum())
     size = np.sqrt(abs(area2) / 2.0)
-    reach = float(np.abs(_TILTS).max() * 0.35 * lengths.max())          # a tilted line's largest depth change
-    depths = np.arange(_START_PX + reach, config.max_depth_fraction * size - reach + 1e-9, _STEP_PX)
+    depths = np.arange(_START_PX, config.max_depth_fraction * size + 1e-9, _STEP_PX)
     if size < config.min_size_px or len(depths) < 3 * _RISE_SPAN or np.any(lengths < 1e-6):
         return polygon
+    reach = np.abs(_TILTS) * 0.35 * lengths.max()           # (T,) each slope's largest depth change along an edge
+    usable = (depths >= _START_PX + reach[:, None] - 1e-9) & (depths <= depths[-1] - reach[:, None] + 1e-9)
+    deep = usable & (depths >= _START_PX + reach.max() - 1e-9) & (depths <= depths[-1] - reach.max() + 1e-9)
     directions = edges / lengths[:, None]
     inward = (-1.0 if area2 >= 0 else 1.0) * directions[:, ::-1] * (1.0, -1.0)
     value, origin = _value_around(image_bgr, polygon, value, np.asarray(value_origin))
@@ -64,7 +69,7 @@ def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
     points, lines = centres + origin, directions.copy()
     found = False
     for index, k in enumerate(candidates):
-        crease = _crease(profiles[index], depths, config)
+        crease = _crease(profiles[index], depths, deep, config) or _crease(profiles[index], depths, usable, config)
         if crease is None:
             continue
         tilt, depth = crease
@@ -140,17 +145,22 @@ def _profiles(value, centres, directions, inward, along, shifts, depths):
                      borderMode=cv2.BORDER_REPLICATE).reshape(shape)
 
 
-def _crease(profiles, depths, config):
+def _crease(profiles, depths, usable, config):
     """(tilt, depth at the edge's middle (px)) of the crease in ``profiles`` (T, M, K), or None
-    (``cut_side_faces``)."""
+    (``cut_side_faces``); ``usable`` (T, K): the depths at which each slope's line stays within the searched band
+    (clear of the outline's blur) all along the edge."""
     mean = np.add.reduce(profiles, axis=1) / profiles.shape[1]                      # (T, K)
-    rises = mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN]                            # (T, K - span)
+    rises = np.where(usable[:, _RISE_SPAN:] & usable[:, :-_RISE_SPAN],
+                     mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN], -np.inf)         # (T, K - span)
     tilt, j = np.unravel_index(int(np.argmax(rises)), rises.shape)
+    if not np.isfinite(rises[tilt, j]):
+        return None                     # no slope fits the band
     crease = j + _RISE_SPAN // 2                                                    # index of the crease's depth
-    strip = mean[tilt, :max(crease - 1, 0)]
+    first, last = np.flatnonzero(usable[tilt])[[0, -1]]
+    strip = mean[tilt, first:max(crease - 1, 0)]
     if len(strip) < _RISE_SPAN:
         return None                     # no strip: the outline's own blur or a rim's shaded band
-    face = float(mean[tilt, crease + 2:].mean())
+    face = float(mean[tilt, crease + 2:last + 1].mean())
     rise = float(rises[tilt, j])
     agreement = float(np.mean(profiles[tilt, :, j + _RISE_SPAN] > profiles[tilt, :, j]))
     if not (rise >= config.min_rise * face and agreement >= config.min_agreement

@@ -1,11 +1,13 @@
 """The test harness itself (tests/conftest.py, tests/ros_graph.py): what one test leaves in this process's rospy node
 does not reach the fakes of later tests."""
+import pytest
 import rospy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 import fake_baxter_client
 from baxter_pnp.msgs import msg
+from baxter_pnp.sim import launcher
 from fake_baxter_client import Recorder, joint_angles, joint_velocity
 
 
@@ -27,3 +29,18 @@ def test_a_fake_started_later_gets_the_robot_defaults_not_what_an_earlier_test_l
         for closing in (joint_states, command, earlier):
             (closing.close if hasattr(closing, 'close') else closing.unregister)()
         process.stop()
+
+
+def test_a_master_whose_chosen_port_is_taken_first_moves_to_another(monkeypatch):
+    """Two harnesses side by side (a trial batch's halves) can both be handed the same free port; the master that
+    loses the bind exits, and the one answering there is the other's. RosMaster checks the answering master's pid
+    and takes another port; a port given explicitly and taken is an error."""
+    with launcher.RosMaster() as first:
+        ports = iter([first.port])
+        real_free_port = launcher.free_port
+        monkeypatch.setattr(launcher, 'free_port', lambda: next(ports, None) or real_free_port())
+        with launcher.RosMaster() as second:
+            assert second.port != first.port
+            assert second.master_api().getPid() == second.process.pid != first.process.pid
+        with pytest.raises(RuntimeError, match=f'rosmaster on port {first.port}'):
+            launcher.RosMaster(port=first.port).start()

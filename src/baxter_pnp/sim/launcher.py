@@ -53,6 +53,9 @@ def harness_clock():
     return clock
 
 
+MASTER_START_ATTEMPTS = 5      # RosMaster.start: ports tried when the chosen one is taken before the master binds it
+
+
 def free_port():
     """A TCP port that is free on 127.0.0.1 right now."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -135,6 +138,7 @@ class RosMaster:
     """
 
     def __init__(self, port=None, clock=None, log_dir=None, start_timeout=10.0):
+        self._port_given = port is not None
         self.port = port or free_port()
         self.uri = f'http://127.0.0.1:{self.port}'
         self.clock = clock or harness_clock()
@@ -149,15 +153,36 @@ class RosMaster:
         return ros_environment(self.uri, self.log_dir, base=base)
 
     def start(self):
-        """Start the master and wait until it answers XML-RPC calls."""
-        self.process = subprocess.Popen([ROSMASTER, '--core', '-p', str(self.port)], env=self.env(),
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                        start_new_session=True)
-        wait_until(lambda: rosgraph.is_master_online(self.uri), self.start_timeout,
-                   what=f'rosmaster on port {self.port}', process=self.process)
+        """Start the master and wait until it answers XML-RPC calls, as itself: ``free_port``'s port is free when
+        chosen, not reserved, so a harness started beside this one (two trial halves) can choose it too; the master
+        that loses the race exits, and the one that answers is then the other's (its pid tells). A chosen port is
+        then chosen again, up to ``MASTER_START_ATTEMPTS`` times; a given one is an error."""
+        for attempt in range(MASTER_START_ATTEMPTS):
+            self.process = subprocess.Popen([ROSMASTER, '--core', '-p', str(self.port)], env=self.env(),
+                                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                            start_new_session=True)
+            try:
+                wait_until(self._serving, self.start_timeout, what=f'rosmaster on port {self.port}',
+                           process=self.process)
+                break
+            except RuntimeError:
+                self.stop()
+                if self._port_given or attempt == MASTER_START_ATTEMPTS - 1:
+                    raise
+                self.port = free_port()
+                self.uri = f'http://127.0.0.1:{self.port}'
         if self.clock == 'sim':
             self.master_api().setParam('/use_sim_time', True)
         return self
+
+    def _serving(self):
+        """True when the master at ``uri`` answers and is this object's process; RuntimeError when another answers."""
+        if not rosgraph.is_master_online(self.uri):
+            return False
+        pid = self.master_api().getPid()
+        if pid != self.process.pid:
+            raise RuntimeError(f'rosmaster on port {self.port}: the port is served by another master (pid {pid})')
+        return True
 
     def master_api(self, caller_id='/baxter_pnp_launcher'):
         """``rosgraph.Master`` client of this master."""

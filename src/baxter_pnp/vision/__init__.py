@@ -51,6 +51,9 @@ Beyond the thesis (all switchable in the YAML):
 - Side faces as bright as the top (``cut_side_faces``, polygons of 40 px and more): an edge with a crease
   inside it, a straight step of V nearly parallel to it all along it, the strip before it evenly darker than
   the face beyond, is moved onto the crease (docs/perception.md, "Side faces as bright as the top").
+- A weaker chroma floor (``chroma.weak_*``): where a colour's floor finds nothing in a region, or only poor
+  fragments of a face, its blobs at 0.7 of the floor count when they stand out from their surroundings along the
+  colour's hue and make good polygons (a dim die on a dark table; docs/perception.md, "Dim faces").
 - Sub-pixel vertices (``refine_vertices``): each edge is re-measured on the original image along its
   normal and a line is fitted to the edge points (Huber), consecutive lines intersected. The edge
   point of a profile comes from a two-colour model, top face and table: the table's share locates the

@@ -105,7 +105,7 @@ class ChromaConfig(Parameters):
     the chroma of a cast the white balance could not remove (``chroma.white_balance``) beyond which every class's
     chroma floor is raised by the excess; ``weak_*``: a second, weaker floor for faces too dim for a class's own,
     trusted only on a balanced image, for blobs that stand out from their surroundings and make good polygons
-    (``detection._weak_detections``)."""
+    (``detection._with_weak_detections``)."""
     white_balance: bool = True
     max_gain: float = 2.0
     max_residual_cast: float = 5.0

@@ -21,8 +21,8 @@ from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
 _TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
-_RING_INNER = np.ones((5, 5), np.uint8)     # _weak_detections: the ring a blob's colour is compared with lies
-_RING_OUTER = np.ones((13, 13), np.uint8)   # 3-6 px around it (dilations by these kernels)
+_RING_INNER = np.ones((5, 5), np.uint8)     # _with_weak_detections: a blob's colour is compared with a ring
+_RING_OUTER = np.ones((13, 13), np.uint8)   # 3-6 px around it (between dilations by these kernels)
 
 
 @dataclass
@@ -122,7 +122,7 @@ class ColourSegmenter:
 
     @property
     def weak_tier(self):
-        """True when ``_weak_detections`` runs: the chroma pipeline, its weaker floor on, the image balanced."""
+        """True when ``_with_weak_detections`` runs: the chroma pipeline, its weaker floor on, the image balanced."""
         return self.config.pipeline == 'chroma' and self.config.chroma.weak_floor_fraction < 1.0 and self.balanced
 
     def lab(self, image_bgr):
@@ -145,8 +145,7 @@ def _candidate_regions(image_bgr, segmenter, config):
 
     Runs the colour stage on the image subsampled by ``roi.downsample`` (nearest pixel; at the weaker floor when
     ``segmenter.weak_tier``); each blob of a colour gives a box padded by ``roi.padding_px``; overlapping boxes are
-    merged (with their
-    colours) so that every blob lies whole inside exactly one region.
+    merged (with their colours) so that every blob lies whole inside exactly one region.
     """
     f = config.roi.downsample
     h, w = image_bgr.shape[:2]

@@ -1,4 +1,4 @@
-"""The chroma pipeline's weaker floor (``ChromaConfig.weak_*``, ``detection._weak_detections``): a face too dim for
+"""The chroma pipeline's weaker floor (``ChromaConfig.weak_*``, ``detection._with_weak_detections``): a face too dim for
 its class's chroma floor is found when it stands out from a grey table, and not when its surroundings carry the
 same tint (a tinted black print) or when it is a refused disc."""
 import dataclasses

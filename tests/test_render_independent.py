@@ -191,3 +191,17 @@ def test_latency_is_measured_on_the_hand_cameras_640x400_frames(camera):
     assert all(0.0 < r['frame_ms_median'] <= r['frame_ms_p90'] < 1000.0 for r in results)
     table = perception_bench.format_latency(results)
     assert '| green40 | 640x400 | 4 | 100.0% |' in table
+
+
+def test_blocks_cut_by_the_border_are_measured(camera):
+    """Each frame is cropped so its block reaches past one border by 15, 30 and 50 % of its extent; a found block
+    is a detection of its colour flagged ``touches_border`` (what the pick re-centres on)."""
+    image = np.zeros((100, 200, 3), np.uint8)
+    square = np.array([[40.0, 20.0], [80.0, 20.0], [80.0, 60.0], [40.0, 60.0]])
+    assert perception_bench._cut_by_the_border(image, square, 0, 0.5).shape == (100, 140, 3)     # cut at u = 60
+    assert perception_bench._cut_by_the_border(image, square, 3, 0.25).shape == (50, 200, 3)     # cut at v = 50
+    config = vision.VisionConfig.from_yaml(None)
+    results = perception_bench.measure_border_cuts(['green40'], 4, 1, camera, config)
+    assert results == [{'dataset': 'green40', 'cut': 12, 'found': results[0]['found']}]
+    assert results[0]['found'] >= 10                 # 40 mm green squares in the open, 2/3 of them or more in view
+    assert '| green40 | 12 |' in perception_bench.format_border_cuts(results)

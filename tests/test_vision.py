@@ -388,6 +388,24 @@ def test_block_cut_by_the_border_is_flagged(camera, config):
     assert detections and all(d.touches_border for d in detections)
 
 
+def _lumpy_blob(centre, lobes, amplitude, radius_px=30.0, size=(640, 400)):
+    """A red blob on grey whose outline has no straight stretch: radius x (1 + amplitude sin(lobes theta))."""
+    image = np.full((size[1], size[0], 3), (120, 125, 125), np.uint8)
+    theta = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+    radius = radius_px * (1.0 + amplitude * np.sin(lobes * theta))
+    outline = np.stack([centre[0] + radius * np.cos(theta), centre[1] + radius * np.sin(theta)], axis=1)
+    cv2.fillPoly(image, [np.round(outline * 16).astype(np.int32)], (40, 40, 200), cv2.LINE_AA, shift=4)
+    return cv2.GaussianBlur(image, (0, 0), 1.0)
+
+
+@pytest.mark.parametrize('lobes, amplitude', [(7, 0.1), (7, 0.15), (9, 0.15), (11, 0.1)])
+def test_a_fragment_cut_by_the_border_without_a_straight_edge_is_no_block(config, lobes, amplitude):
+    """Like the real e-stop button cut by the image border: the border gives the fragment its one straight side,
+    so without an edge of its own along a straight image edge it is nothing (each of these made a triangle or a
+    square before; the block cut by the border above is kept)."""
+    assert vision.detect(_lumpy_blob((10, 200), lobes, amplitude), config) == []
+
+
 def test_detection_fields_and_drawing(camera, config):
     spec = synthetic.BlockSpec('pentagon', 0.04, 0.02, GREEN)
     image, truths = synthetic.render_block_scene(camera, [(spec, block_pose(camera, (320, 240), 0.2))],

@@ -247,6 +247,48 @@ def format_latency(results):
     return '\n'.join(lines)
 
 
+BORDER_CUT_FRACTIONS = (0.15, 0.30, 0.50)    # measure_border_cuts: share of the block's extent cut off
+BORDER_CUT_SEED_OFFSET = 70                   # its frames' seeds: their own
+
+
+def _cut_by_the_border(image, vertices_px, side, fraction):
+    """``image`` cropped so that ``fraction`` of the extent of the polygon ``vertices_px`` (n, 2) lies beyond one
+    border (``side`` 0..3: left, right, top, bottom)."""
+    (u0, v0), (u1, v1) = vertices_px.min(axis=0), vertices_px.max(axis=0)
+    crops = (lambda: image[:, int(u0 + fraction * (u1 - u0)):], lambda: image[:, :int(u1 - fraction * (u1 - u0))],
+             lambda: image[int(v0 + fraction * (v1 - v0)):, :], lambda: image[:int(v1 - fraction * (v1 - v0)), :])
+    return np.ascontiguousarray(crops[side]())
+
+
+def measure_border_cuts(kinds, count, seed, camera, config):
+    """Per dataset of ``kinds``: ``count`` frames, each cropped so its block is cut by the image border (one border
+    per frame, in turn; ``BORDER_CUT_FRACTIONS`` of its extent). One dict with the cut blocks and how many gave a
+    detection of their colour flagged ``touches_border`` (what the task layer re-centres on)."""
+    results = []
+    for kind in kinds:
+        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
+        frame_seed = seed + 100 * offset + BORDER_CUT_SEED_OFFSET
+        render = render_independent.render_scene if kind in R2_DATASETS else synthetic.render_block_scene
+        rng = np.random.default_rng(frame_seed + 1)
+        cut = found = 0
+        for index, (spec, T_true, colour) in enumerate(make_dataset(kind, count, frame_seed, camera)):
+            image, truths = render(camera, [(spec, T_true)], rng)
+            for fraction in BORDER_CUT_FRACTIONS:
+                crop = _cut_by_the_border(image, truths[0]['vertices_px'], index % 4, fraction)
+                cut += 1
+                found += any(d.colour == colour and d.touches_border for d in vision.detect(crop, config))
+        results.append({'dataset': kind, 'cut': cut, 'found': found})
+    return results
+
+
+def format_border_cuts(results):
+    """Markdown table of ``measure_border_cuts``'s results."""
+    lines = ['| dataset | blocks cut by the border | found, flagged touches_border |', '|---|---|---|']
+    lines += ['| %s | %d | %d (%.1f%%) |' % (r['dataset'], r['cut'], r['found'],
+                                             100.0 * r['found'] / max(1, r['cut'])) for r in results]
+    return '\n'.join(lines)
+
+
 def _tilt_deg(T_camera_block):
     """Angle (deg) between the block's +z and the camera's -z (0 = top face squarely towards the camera)."""
     return float(np.degrees(np.arccos(np.clip(-T_camera_block[2, 2], -1.0, 1.0))))
@@ -403,6 +445,10 @@ def main(argv=None):
     parser.add_argument('--latency-frames', type=int, default=150, metavar='N',
                         help='frames of each dataset rendered at 640x400 (a Baxter hand camera\'s mode) for the '
                              'latency table, vision + sqp (default 150; depth161 has 56; 0: no latency table)')
+    parser.add_argument('--border-cut-frames', type=int, default=40, metavar='N',
+                        help='frames of each dataset whose block is cut by the image border (at %s %%%% of its '
+                             'extent; default 40; 0: no border-cut table)'
+                             % ', '.join('%d' % (100 * f) for f in BORDER_CUT_FRACTIONS))
     args = parser.parse_args(argv)
     limit_to_one_core()
     camera = camera_module.load_default_camera()
@@ -433,6 +479,11 @@ def main(argv=None):
         with open(os.path.join(args.out, 'latency.json'), 'w') as f:
             json.dump(latency, f, indent=1)
         print('\nlatency at %dx%d (vision + sqp, one core)\n\n%s' % (*HAND_CAMERA_MODE, format_latency(latency)))
+    if args.border_cut_frames > 0:
+        cuts = measure_border_cuts(args.datasets, args.border_cut_frames, args.seed, camera, config)
+        with open(os.path.join(args.out, 'border_cuts.json'), 'w') as f:
+            json.dump(cuts, f, indent=1)
+        print('\nblocks cut by the image border\n\n%s' % format_border_cuts(cuts))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)

@@ -153,6 +153,7 @@ class VisionConfig(Parameters):
     cut_corner_clear_max_size_px: float = 100.0
     flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
+    border_edge_max_rms_px: float = 1.0
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
     side_face_cut: SideFaceConfig = field(default_factory=SideFaceConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
@@ -170,6 +171,7 @@ class VisionConfig(Parameters):
         self.require(self.cut_corner_clear_area_fraction >= self.cut_corner_area_fraction,
                      'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
         self.require(self.cut_corner_clear_max_size_px >= 0, 'cut_corner_clear_max_size_px', 'must be >= 0')
+        self.require(self.border_edge_max_rms_px > 0, 'border_edge_max_rms_px', 'must be > 0')
         self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
 

@@ -314,7 +314,9 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     With the chroma pipeline a disc (``looks_round``, on the outline off the image border) is None; it is
     judged on the polygon before the corners that ``cut_corner_clear_area_fraction`` restores are (a disc's
     pentagon would become a square). ``quality`` = solidity of the outline x exp(-edge RMS / ``max_rms_px``)
-    x (1 - fallbacks / (2 n)).
+    x (1 - fallbacks / (2 n)). A polygon cut by the image border with no edge of its own along a straight image
+    edge (the sub-pixel stage's line within ``border_edge_max_rms_px``) is None: its straight side is the
+    border's, nothing says it is a block's (a button cut by the border, docs/perception.md "Border-cut fragments").
     """
     hull = cv2.convexHull(outline)
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
@@ -334,19 +336,21 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     if config.side_face_cut.enabled:
         coarse = cut_side_faces(image_bgr, coarse, config.side_face_cut, value, offset)
     solidity = cv2.contourArea(outline) / max(cv2.contourArea(hull), 1e-9)
+    h, w = image_bgr.shape[:2]
+    margin = config.border_margin_px
     if config.subpixel.enabled:
-        vertices, rms, fallbacks = refine_vertices(image_bgr, coarse, config.subpixel)
+        vertices, rms, fallbacks, straightest = refine_vertices(image_bgr, coarse, config.subpixel)
         fit = math.exp(-rms / config.subpixel.max_rms_px) if np.isfinite(rms) else 0.5
         quality = solidity * fit * (1.0 - 0.5 * fallbacks / len(coarse))
     else:
-        vertices, quality = coarse, solidity
+        vertices, quality, straightest = coarse, solidity, 0.0
+    touches = bool(np.any((vertices < margin) | (vertices > np.array([w - 1, h - 1]) - margin)))
+    if touches and not straightest <= config.border_edge_max_rms_px:
+        return None
     vertices = order_vertices(vertices)
     moments = cv2.moments(vertices.astype(np.float32))
     if moments['m00'] <= 0:
         return None
-    h, w = image_bgr.shape[:2]
-    margin = config.border_margin_px
-    touches = bool(np.any((vertices < margin) | (vertices > np.array([w - 1, h - 1]) - margin)))
     return Detection(shape=shape, colour=colour, vertices_px=vertices,
                      centroid_px=np.array([moments['m10'], moments['m01']]) / moments['m00'],
                      area_px=float(moments['m00']), quality=float(np.clip(quality, 0.0, 1.0)),

@@ -25,8 +25,9 @@ def refine_vertices(image_bgr, coarse_px, config):
     ``min_contrast``, RMS above ``max_rms_px``), the lines are within ~10 deg of parallel, or the
     intersection is more than ``max_shift_px`` from the coarse vertex.
 
-    Returns ``(vertices (n, 2), rms_px, fallback_count)`` of the last pass: ``rms_px`` is the RMS
-    distance of the edge points to their lines over the fitted edges (NaN if none).
+    Returns ``(vertices (n, 2), rms_px, fallback_count, straightest_px)`` of the last pass: ``rms_px`` is
+    the RMS distance of the edge points to their lines over the fitted edges (NaN if none), ``straightest_px``
+    the least RMS of one edge's points to its line over the edges with a line, whatever its RMS (NaN if none).
     """
     coarse = np.asarray(coarse_px, dtype=float).reshape(-1, 2)
     r, step = config.profile_half_length_px, config.profile_step_px
@@ -34,9 +35,10 @@ def refine_vertices(image_bgr, coarse_px, config):
     previous = np.arange(-1, len(coarse) - 1)                   # vertex k joins edges k - 1 and k
     vertices, rms, fallbacks = coarse, float('nan'), len(coarse)
     for _ in range(config.passes):
-        samples, points, directions, normals, usable = _sample_edge_profiles(image_bgr, vertices, offsets, config)
+        samples, points, directions, normals, usable, seen = _sample_edge_profiles(image_bgr, vertices, offsets,
+                                                                                   config)
         crossings, contrasts = _edge_crossings(samples, offsets, config)
-        crossings[~(usable & (contrasts >= config.min_contrast))] = np.nan
+        crossings[~(usable & (contrasts >= config.min_contrast))[:, None] | ~seen] = np.nan
         anchors, line_directions, residuals = _fit_edge_lines(points, directions, normals, crossings,
                                                               config.min_points)
         used = np.isfinite(residuals)
@@ -50,7 +52,9 @@ def refine_vertices(image_bgr, coarse_px, config):
         fallbacks = int(len(coarse) - good.sum())
         count = used[fitted].sum()
         rms = float(np.sqrt(squared[fitted].sum() / count)) if count else float('nan')
-    return vertices, rms, fallbacks
+        lined = np.isfinite(anchors[:, 0])
+        straightest = float(edge_rms[lined].min()) if lined.any() else float('nan')
+    return vertices, rms, fallbacks, straightest
 
 
 def _sample_edge_profiles(image_bgr, polygon, offsets, config):
@@ -58,8 +62,9 @@ def _sample_edge_profiles(image_bgr, polygon, offsets, config):
 
     Returns ``samples (n, M, K, 3)`` float32 (M = ``profiles_per_edge`` profiles of K = len(offsets)
     samples, from inside to outside), their centre ``points (n, M, 2)`` on the edge, the unit edge
-    ``directions (n, 2)`` and outward ``normals (n, 2)``, and ``usable (n,)`` (False for an edge too
-    short to hold the profiles clear of its corners). All profiles come from one ``cv2.remap`` of the
+    ``directions (n, 2)`` and outward ``normals (n, 2)``, ``usable (n,)`` (False for an edge too
+    short to hold the profiles clear of its corners) and ``seen (n, M)`` (False for a profile reaching past the
+    image border, whose samples there are the border's repeated). All profiles come from one ``cv2.remap`` of the
     image (bilinear, to 1/32 px and whole grey levels).
     """
     n, m = len(polygon), config.profiles_per_edge
@@ -80,7 +85,9 @@ def _sample_edge_profiles(image_bgr, polygon, offsets, config):
     coords = (points[:, :, None, :] + offsets[:, None] * normals[:, None, None, :]).astype(np.float32)
     samples = cv2.remap(image_bgr, coords.reshape(n * m, len(offsets), 2), None, cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
-    return samples.reshape(n, m, len(offsets), 3).astype(np.float32), points, directions, normals, usable
+    h, w = image_bgr.shape[:2]
+    seen = ((coords.min(axis=2) >= 0.0) & (coords.max(axis=2) <= (w - 1, h - 1))).all(axis=2)
+    return samples.reshape(n, m, len(offsets), 3).astype(np.float32), points, directions, normals, usable, seen
 
 
 def _edge_crossings(samples, offsets, config):

@@ -171,3 +171,16 @@ def test_scripts_launch_and_config_files_name_no_ground_truth():
                 if name.endswith(extensions):
                     with open(os.path.join(root, name)) as f:
                         assert FAKE_NAMESPACE not in f.read(), os.path.join(directory, name)
+
+
+def test_every_entry_points_help_says_what_it_does():
+    """The ``--help`` description of each command (``runtime.command_summary`` of its module's docstring): one
+    sentence, capitalised, without the usage or reST's double backquotes."""
+    from baxter_pnp.runtime import command_summary
+    described = {name: path for name, path in modules().items() if 'command_summary(__doc__)' in open(path).read()}
+    assert len(described) >= 13, sorted(described)
+    for name, path in described.items():
+        summary = command_summary(ast.get_docstring(ast.parse(open(path).read()), clean=False))
+        assert summary[0].isupper() and summary.endswith('.') and '``' not in summary and '\n' not in summary, \
+            (name, summary)
+    assert command_summary('``pick.py ARGS``: picks\n  a block.\n\nMore.') == 'Picks a block.'

@@ -27,7 +27,7 @@ import rospy
 
 from baxter_pnp import board_views, calibration, hand_eye, robot, view
 from baxter_pnp.params import ParameterError, Parameters
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.task import cli
 from baxter_pnp.task.motion import Motion
 from baxter_pnp.task.session import RobotSession, TaskFailure, failure_reason
@@ -277,7 +277,7 @@ def parse_pattern(text):
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog='calibrate_hand_eye.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='calibrate_hand_eye.py', description=command_summary(__doc__))
     parser.add_argument('--pattern', type=parse_pattern, help='inner corners COLSxROWS, e.g. 9x6')
     parser.add_argument('--square', type=float, help='square side (m), measured on the printed board')
     parser.add_argument('--views', type=int, help='viewpoints (default 20)')

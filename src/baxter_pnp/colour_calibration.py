@@ -16,6 +16,7 @@ from baxter_pnp import vision
 from baxter_pnp.params import ParameterError, load_mapping
 from baxter_pnp.vision import chroma
 from baxter_pnp.vision.config import DEFAULT_VISION_YAML, ColourClass
+from baxter_pnp.runtime import command_summary
 
 
 def parse_roi(text):
@@ -29,7 +30,7 @@ def parse_roi(text):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='calibrate_colour.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='calibrate_colour.py', description=command_summary(__doc__))
     parser.add_argument('image', metavar='IMAGE', help='a view of one block of the colour (any format OpenCV reads)')
     parser.add_argument('--name', required=True, help='colour name, e.g. green')
     parser.add_argument('--roi', type=parse_roi, help='X,Y,WIDTH,HEIGHT (px) around the block; default: central third')

@@ -32,6 +32,7 @@ import yaml
 from baxter_pnp import bag_replay
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, perception, vision
+from baxter_pnp.runtime import command_summary
 
 # The camera model is scaled to an image whose width/height ratio is within this factor of the model's (4:3 <->
 # 16:10 or 16:9 crops); beyond it the model says nothing about the image.
@@ -40,7 +41,7 @@ JPEG_START, JPEG_END = b'\xff\xd8', b'\xff\xd9'
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog='detect_image.py', description=__doc__.split('\n')[0].split(': ', 1)[1],
+    parser = argparse.ArgumentParser(prog='detect_image.py', description=command_summary(__doc__),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('inputs', nargs='+', metavar='IMAGE_OR_BAG',
                         help='image files (any format OpenCV reads) and .bag files, in any order')

@@ -22,7 +22,7 @@ import rospy
 
 from baxter_pnp import pick, vision
 from baxter_pnp.params import ParameterError
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.task import cli
 from baxter_pnp.task.eye import BlockQuery, Eye
 from baxter_pnp.task.motion import Motion
@@ -138,7 +138,7 @@ class PickApplication(Picker):
 
 # ==================================================================================== entry point
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog='pick_square.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='pick_square.py', description=command_summary(__doc__))
     parser.add_argument('--mode', choices=pick.MODES)
     parser.add_argument('--shape', help='target shape (triangle, square, pentagon, hexagon)')
     parser.add_argument('--side-length', type=float, help='block side (m)')

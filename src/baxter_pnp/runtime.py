@@ -7,6 +7,7 @@ PyBullet live in the project's venv (created by ``make venv`` from ``/usr/bin/py
 then re-executes the script with the venv's interpreter when one is found.
 """
 import os
+import re
 import sys
 
 PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -40,3 +41,10 @@ def use_project_venv(script_path):
         return
     os.environ['BAXTER_PNP_NO_REEXEC'] = '1'
     os.execv(python, [python, os.path.realpath(script_path)] + sys.argv[1:])
+
+
+def command_summary(docstring):
+    """What an entry point's ``--help`` says it does: the first paragraph of its module ``docstring`` on one line,
+    without a leading usage (a double-backquoted command and a colon) and without reST's double backquotes."""
+    paragraph = re.sub(r'^``[^`]*``:\s*', '', ' '.join(docstring.strip().split('\n\n')[0].split()))
+    return (paragraph[:1].upper() + paragraph[1:]).replace('``', '')

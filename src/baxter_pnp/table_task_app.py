@@ -25,7 +25,7 @@ import rospy
 
 from baxter_pnp import pick, survey, table_map, table_plan, vision
 from baxter_pnp.params import ParameterError
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.table_plan import PlanError, TableTaskConfig
 from baxter_pnp.task import cli, target
 from baxter_pnp.task.eye import BlockQuery, Eye
@@ -472,7 +472,7 @@ def parse_args(argv):
     common.add_argument('--start-pose', help='start pose name in config/start_poses.yaml (down, angled)')
     common.add_argument('--estimator', choices=['sqp', 'ippe', 'sqpnp'])
     cli.add_session_arguments(common, DEFAULT_CONFIG)
-    parser = argparse.ArgumentParser(prog='table_task.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='table_task.py', description=command_summary(__doc__))
     tasks = parser.add_subparsers(dest='task', metavar='TASK', required=True)
     tasks.add_parser('survey', parents=[common], help='survey the table: print the map, write table_map.json')
     sort = tasks.add_parser('sort', parents=[common], help='every block of a named colour (and shape) to its bin')

@@ -16,7 +16,7 @@ import os
 import cv2
 import numpy as np
 
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 
 REAL_DEFAULT = [os.path.join(PACKAGE_ROOT, '..', 'shared', 'real', name) for name in ('baxter_hand_a', 'baxter_hand_b')]
 STATISTICS = ('L_median', 'L_p10', 'L_p90', 'chroma_median', 'chroma_p95', 'noise_bgr', 'grey_b_over_g',
@@ -116,7 +116,7 @@ def _fmt(value):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(description=command_summary(__doc__))
     parser.add_argument('--real', nargs='*', default=REAL_DEFAULT, help='folders of real frames')
     parser.add_argument('--presets', nargs='*', default=['clean', 'baxter'], help='appearance presets to render')
     parser.add_argument('--out', help='write one real and one rendered picture per column here')

@@ -11,10 +11,11 @@ import os
 import sys
 
 from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, run_script
+from baxter_pnp.runtime import command_summary
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='demo.py', description=command_summary(__doc__))
     parser.add_argument('--out', default='out/demo')
     parser.add_argument('--mode', default='pbvs', choices=['pbvs', 'ibvs', 'hybrid'])
     parser.add_argument('--place', default='0.62,0.12', help='X,Y (m, base) to put the block down; "" = pick only')

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 
 SCENES = os.path.join(PACKAGE_ROOT, 'config', 'scenes')
 # name: (scene, refine the intrinsics too: --intrinsics, then the pick uses them)
@@ -107,7 +107,7 @@ def published_fx():
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='bench_hand_eye.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='bench_hand_eye.py', description=command_summary(__doc__))
     parser.add_argument('--out', default='out/bench_hand_eye')
     parser.add_argument('--cases', default=','.join(CASES), help='comma-separated of: %s' % ', '.join(CASES))
     args = parser.parse_args(argv)

@@ -35,6 +35,7 @@ from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pose, synthetic, vision
 from baxter_pnp.bench import render_independent
 from baxter_pnp.transforms import make_transform
+from baxter_pnp.runtime import command_summary
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
 ESTIMATORS = ('sqp', 'sqp+plane', 'ippe', 'sqpnp')
@@ -429,7 +430,7 @@ def dataset_list(text):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='bench_perception.py', description=__doc__.split('\n')[0])
+    parser = argparse.ArgumentParser(prog='bench_perception.py', description=command_summary(__doc__))
     parser.add_argument('--datasets', type=dataset_list, default=list(PROJECT_DATASETS + R2_DATASETS),
                         help='comma-separated: %s, or the groups project, r2, all (default all)'
                              % ', '.join(PROJECT_DATASETS + R2_DATASETS))

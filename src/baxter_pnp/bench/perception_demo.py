@@ -1,4 +1,4 @@
-"""``make demo`` (until the pick application lands): the perception pipeline end to end on rendered images.
+"""``make demo-perception``: the perception pipeline end to end on rendered images.
 
 Renders a few hand-camera views of coloured blocks with known poses (thesis camera, 640x480), runs
 ``detect_image`` on them, and prints each estimate beside the ground truth. Leaves the images and the
@@ -12,6 +12,7 @@ import numpy as np
 
 from baxter_pnp import camera as camera_module
 from baxter_pnp import detect_cli, synthetic
+from baxter_pnp.runtime import command_summary
 
 SCENES = [  # (shape, side m, colour BGR, distance m, tilt deg)
     ('square', 0.040, (40, 170, 40), 0.161, 0.0),
@@ -22,7 +23,7 @@ SCENES = [  # (shape, side m, colour BGR, distance m, tilt deg)
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='perception_demo.py', description=__doc__.split('\n')[0])
+    parser = argparse.ArgumentParser(prog='perception_demo.py', description=command_summary(__doc__))
     parser.add_argument('--out', default='out/demo')
     parser.add_argument('--seed', type=int, default=7)
     args = parser.parse_args(argv)

@@ -16,6 +16,7 @@ import yaml
 from baxter_pnp.sim.clock import CLOCKS
 from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, run_script
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML
+from baxter_pnp.runtime import command_summary
 
 STAMPS = re.compile(r'\] \[(\d+\.\d+), (\d+\.\d+)\]: ')
 STREAMING = re.compile(r'stopped after .*?, ([\d.]+) since the first camera opened ([\d.]+) simulated s ago')
@@ -64,7 +65,7 @@ def run_case(mode, start_pose, look, clock, work, real_time_factor=1.0):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='bench_real_time.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='bench_real_time.py', description=command_summary(__doc__))
     parser.add_argument('--runs', type=int, default=3, help='runs per case and clock')
     parser.add_argument('--cases', default=','.join(CASES), help='comma-separated of: %s' % ', '.join(CASES))
     parser.add_argument('--clocks', default=','.join(CLOCKS), help='comma-separated of: %s' % ', '.join(CLOCKS))

@@ -32,6 +32,8 @@ import time
 
 import numpy as np
 
+from baxter_pnp.runtime import command_summary
+
 CANDIDATES = {          # name: (renderer, extra environment, appearance)
     'tiny': ('tiny', {}, 'clean'),
     'egl': ('egl', {}, 'clean'),
@@ -118,7 +120,7 @@ def run_candidate(name, start, frames, folder):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='bench_render.py', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='bench_render.py', description=command_summary(__doc__))
     parser.add_argument('--frames', type=int, default=60, help='frames per candidate; default %(default)s')
     parser.add_argument('--start', default='angled', choices=('angled', 'down', 'neutral'),
                         help='start pose of the left arm (what the camera sees); default %(default)s')

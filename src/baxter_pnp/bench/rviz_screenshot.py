@@ -18,7 +18,7 @@ import time
 import cv2
 import numpy as np
 
-from baxter_pnp.runtime import PACKAGE_ROOT
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.sim import launcher
 
 RVIZ_CONFIG = os.path.join(PACKAGE_ROOT, 'config', 'baxter_pnp.rviz')
@@ -41,7 +41,7 @@ def read_xwd(path):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='rviz_screenshot.py', description=__doc__.split('\n')[0].strip('`: '))
+    parser = argparse.ArgumentParser(prog='rviz_screenshot.py', description=command_summary(__doc__))
     parser.add_argument('--out', default=os.path.join(PACKAGE_ROOT, 'docs', 'images', 'rviz.png'))
     parser.add_argument('--scene', default=os.path.join(PACKAGE_ROOT, 'config', 'scenes', 'stack.yaml'))
     parser.add_argument('--settle', type=float, default=10.0, help='seconds rviz draws after the survey')

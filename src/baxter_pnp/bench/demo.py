@@ -10,8 +10,8 @@ import json
 import os
 import sys
 
-from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, run_script
 from baxter_pnp.runtime import command_summary
+from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, run_script
 
 
 def main(argv=None):

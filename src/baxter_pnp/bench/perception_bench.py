@@ -34,8 +34,8 @@ import numpy as np
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pose, synthetic, vision
 from baxter_pnp.bench import render_independent
-from baxter_pnp.transforms import make_transform
 from baxter_pnp.runtime import command_summary
+from baxter_pnp.transforms import make_transform
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
 ESTIMATORS = ('sqp', 'sqp+plane', 'ippe', 'sqpnp')
@@ -255,10 +255,11 @@ BORDER_CUT_SEED_OFFSET = 70                   # its frames' seeds: their own
 def _cut_by_the_border(image, vertices_px, side, fraction):
     """``image`` cropped so that ``fraction`` of the extent of the polygon ``vertices_px`` (n, 2) lies beyond one
     border (``side`` 0..3: left, right, top, bottom)."""
-    (u0, v0), (u1, v1) = vertices_px.min(axis=0), vertices_px.max(axis=0)
-    crops = (lambda: image[:, int(u0 + fraction * (u1 - u0)):], lambda: image[:, :int(u1 - fraction * (u1 - u0))],
-             lambda: image[int(v0 + fraction * (v1 - v0)):, :], lambda: image[:int(v1 - fraction * (v1 - v0)), :])
-    return np.ascontiguousarray(crops[side]())
+    low, high = vertices_px.min(axis=0), vertices_px.max(axis=0)
+    axis = side // 2                                        # 0: u (columns), 1: v (rows)
+    cut = fraction * (high[axis] - low[axis])
+    window = slice(int(low[axis] + cut), None) if side % 2 == 0 else slice(None, int(high[axis] - cut))
+    return np.ascontiguousarray(image[:, window] if axis == 0 else image[window])
 
 
 def measure_border_cuts(kinds, count, seed, camera, config):

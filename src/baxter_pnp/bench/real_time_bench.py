@@ -13,10 +13,10 @@ import tempfile
 
 import yaml
 
+from baxter_pnp.runtime import command_summary
 from baxter_pnp.sim.clock import CLOCKS
 from baxter_pnp.sim.launcher import FakeBaxterProcess, RosMaster, run_script
 from baxter_pnp.sim.scene import DEFAULT_SCENE_YAML
-from baxter_pnp.runtime import command_summary
 
 STAMPS = re.compile(r'\] \[(\d+\.\d+), (\d+\.\d+)\]: ')
 STREAMING = re.compile(r'stopped after .*?, ([\d.]+) since the first camera opened ([\d.]+) simulated s ago')

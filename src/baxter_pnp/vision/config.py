@@ -56,6 +56,12 @@ class SubpixelConfig(Parameters):
     max_rms_px: float = 0.5
     max_shift_px: float = 5.0
 
+    def validate(self):
+        self.require(self.passes >= 1, 'passes', 'must be >= 1 (enabled: false turns the refinement off)')
+        self.require(self.profiles_per_edge >= 2, 'profiles_per_edge', 'must be >= 2')
+        self.require(self.profile_step_px > 0.0, 'profile_step_px', 'must be > 0')
+        self.require(self.max_rms_px > 0.0, 'max_rms_px', 'must be > 0')
+
 
 @dataclass(frozen=True)
 class SideFaceConfig(Parameters):

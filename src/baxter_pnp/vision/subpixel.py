@@ -33,7 +33,7 @@ def refine_vertices(image_bgr, coarse_px, config):
     r, step = config.profile_half_length_px, config.profile_step_px
     offsets = np.arange(-r, r + 0.5 * step, step)
     previous = np.arange(-1, len(coarse) - 1)                   # vertex k joins edges k - 1 and k
-    vertices, rms, fallbacks = coarse, float('nan'), len(coarse)
+    vertices, rms, fallbacks, straightest = coarse, float('nan'), len(coarse), float('nan')
     for _ in range(config.passes):
         samples, points, directions, normals, usable, seen = _sample_edge_profiles(image_bgr, vertices, offsets,
                                                                                    config)

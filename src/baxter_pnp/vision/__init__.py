@@ -59,7 +59,8 @@ Beyond the thesis (all switchable in the YAML):
   point of a profile comes from a two-colour model, top face and table: the table's share locates the
   table's edge, and the darkening no mix of the two explains measures the side face in between: one
   thinner than the blur (1-3 px, near face-on views off-centre) is removed by its darkening mass, a
-  wider one by the step to its colour.
+  wider one by the step to its colour. A polygon cut by the image border is kept only with an edge of its own
+  along a straight image edge (``border_edge_max_rms_px``; docs/perception.md, "Border-cut fragments").
 - A floor under the dynamic threshold (``min_saturation_threshold``) and a zero border for the
   Laplacian, so a colourless image stays empty and a blob cut by the image border keeps a closed outline.
 - Speed (``roi``): the candidate blobs of each colour are found by the same stages on a subsampled

@@ -33,8 +33,8 @@ import numpy as np
 
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pose, synthetic, vision
-from baxter_pnp.bench import render_independent
-from baxter_pnp.runtime import command_summary
+from baxter_pnp.bench import photometric, render_independent
+from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
@@ -248,6 +248,23 @@ def format_latency(results):
     return '\n'.join(lines)
 
 
+REAL_DEFAULT = os.environ.get('BAXTER_PNP_REAL_DATA', os.path.join(PACKAGE_ROOT, '..', 'shared', 'real'))
+PHOTOMETRIC_SEED_OFFSET = 90                  # measure_photometric's frames' seeds: their own
+
+
+def measure_photometric(kinds, count, seed, camera, config, real_dir):
+    """``photometric``'s two measures: the false detections on the real frames of ``real_dir`` that show no
+    block, and the blocks of ``count`` frames of each independent-renderer set of ``kinds`` found, under every
+    photometric change. Returns ``(false_found, frame_count, blocks)`` as ``photometric.format_tables`` takes them."""
+    frames = photometric.real_negative_frames(real_dir)
+    blocks = {}
+    for kind in [k for k in kinds if k in R2_DATASETS]:
+        frame_seed = seed + 100 * (PROJECT_DATASETS + R2_DATASETS).index(kind) + PHOTOMETRIC_SEED_OFFSET
+        blocks[kind] = photometric.blocks_found(make_dataset(kind, count, frame_seed, camera), camera, config,
+                                                np.random.default_rng(frame_seed + 1))
+    return photometric.false_detections(frames, config), len(frames), blocks
+
+
 BORDER_CUT_FRACTIONS = (0.15, 0.30, 0.50)    # measure_border_cuts: share of the block's extent cut off
 BORDER_CUT_SEED_OFFSET = 70                   # its frames' seeds: their own
 
@@ -451,6 +468,13 @@ def main(argv=None):
                         help='frames of each dataset whose block is cut by the image border (at %s %%%% of its '
                              'extent; default 40; 0: no border-cut table)'
                              % ', '.join('%d' % (100 * f) for f in BORDER_CUT_FRACTIONS))
+    parser.add_argument('--photometric-frames', type=int, default=40, metavar='N',
+                        help='frames of each _r2 dataset, and the real frames with no block (--real), measured '
+                             'under exposure, cast, gamma, vignetting, glow and saturation changes (default 40; 0: '
+                             'no photometric tables)')
+    parser.add_argument('--real', default=REAL_DEFAULT, metavar='DIR',
+                        help='the real images (default ../shared/real beside the repository, or '
+                             '$BAXTER_PNP_REAL_DATA); their blockless frames are counted when present')
     args = parser.parse_args(argv)
     limit_to_one_core()
     camera = camera_module.load_default_camera()
@@ -486,9 +510,19 @@ def main(argv=None):
         with open(os.path.join(args.out, 'border_cuts.json'), 'w') as f:
             json.dump(cuts, f, indent=1)
         print('\nblocks cut by the image border\n\n%s' % format_border_cuts(cuts))
+    if args.photometric_frames > 0:
+        false_found, frame_count, blocks = measure_photometric(args.datasets, args.photometric_frames, args.seed,
+                                                               camera, config, args.real)
+        with open(os.path.join(args.out, 'photometric.json'), 'w') as f:
+            json.dump({'false_detections': false_found, 'real_frames': frame_count,
+                       'blocks_found': {kind: {v: list(c) for v, c in found.items()} for kind, found in blocks.items()}},
+                      f, indent=1)
+        print('\nphotometric changes (real frames with no block%s; independent renderer\'s blocks)\n\n%s' % (
+            '' if frame_count else ': none at %s' % args.real, photometric.format_tables(false_found, frame_count, blocks)))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)
         print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
-    print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json)' % (args.out, args.out))
+    print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json, border_cuts.json, '
+          'photometric.json)' % (args.out, args.out))
     return 0

@@ -41,7 +41,7 @@ def white_balance(image_bgr, config):
     if not config.white_balance:
         return ones, 0.0
     pixels = image_bgr[::_WB_STRIDE, ::_WB_STRIDE] if image_bgr.size > 3 * _WB_PIXELS else image_bgr
-    pixels = np.ascontiguousarray(pixels).reshape(-1, 1, 3)
+    pixels = np.ascontiguousarray(pixels).reshape(1, -1, 3)     # one row: OpenCV's conversions cost per row
     lab = cv2.cvtColor(pixels, cv2.COLOR_BGR2LAB).reshape(-1, 3)
     ab = lab[:, 1:].astype(np.int32) - 128
     chroma_squared = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
@@ -49,11 +49,11 @@ def white_balance(image_bgr, config):
     if np.count_nonzero(mid) < 0.05 * len(mid):
         return ones, 0.0
     grey = mid & (chroma_squared <= _median(chroma_squared[mid]))
-    illuminant = _median(pixels[grey, 0]).astype(np.float32)
+    illuminant = _median(pixels[0, grey]).astype(np.float32)
     if np.any(illuminant < 1.0):
         return ones, 0.0
     gains = np.clip(illuminant.mean() / illuminant, 1.0 / config.max_gain, config.max_gain).astype(np.float32)
-    cast = _median(cv2.cvtColor(balanced_bgr(pixels[mid], gains), cv2.COLOR_BGR2LAB)[:, 0, 1:]) - 128.0
+    cast = _median(cv2.cvtColor(balanced_bgr(pixels[:, mid], gains), cv2.COLOR_BGR2LAB)[0, :, 1:]) - 128.0
     return gains, float(np.hypot(cast[0], cast[1]))
 
 
@@ -67,10 +67,15 @@ def _median(values):
 
 
 def balanced_bgr(image_bgr, gains):
-    """The image scaled per channel by ``gains`` (saturating); the image itself when the gains are all 1."""
+    """The image scaled per channel by ``gains``, every channel then clipped at ``255 * min(gains)``, the level where
+    the first channel's clipped highlights end up (so a highlight clipped in one channel stays grey, as raw
+    converters keep it, instead of taking the other channels' colour: a white screen under a cast); the image itself
+    when the gains are all 1."""
     if np.all(gains == 1.0):
         return image_bgr
-    return cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
+    balanced = cv2.transform(image_bgr, np.diag(gains).astype(np.float32))
+    ceiling = int(255.0 * float(np.min(gains)))
+    return np.minimum(balanced, np.uint8(ceiling)) if ceiling < 255 else balanced
 
 
 def balanced_lab(image_bgr, gains):
@@ -150,12 +155,23 @@ def learn_colour_class(image_bgr, roi, config, min_sample_chroma=10.0):
             float(max(3.0, 0.5 * np.percentile(lightness[coloured], 5))))
 
 
-def hue_contrast(lab, inside, around, hue_deg):
-    """Median chroma along ``hue_deg`` (CIELAB units: a*b* projected on that hue's direction) of the pixels of the
-    8-bit CIELAB image ``lab`` where ``inside`` is set, less that of the pixels where ``around`` is set."""
+def along_hue(lab, mask, hue_deg):
+    """(k,) float32 chroma along ``hue_deg`` (CIELAB units: a*b* projected on that hue's direction) of the pixels
+    of the 8-bit CIELAB image ``lab`` where ``mask`` is set."""
     direction = np.array([math.cos(math.radians(hue_deg)), math.sin(math.radians(hue_deg))], np.float32)
+    return (lab[mask > 0][:, 1:].astype(np.float32) - 128.0) @ direction
 
-    def along(mask):
-        ab = lab[mask > 0][:, 1:].astype(np.float32) - 128.0
-        return float(np.median(ab @ direction)) if len(ab) else 0.0
-    return along(inside) - along(around)
+
+def along_hue_image(lab, hue_deg):
+    """uint8 image of the chroma along ``hue_deg`` (``along_hue``) of each pixel of the 8-bit CIELAB image ``lab``,
+    rounded and offset by 128 (clipped to 0-255: -128..127 CIELAB units)."""
+    c, s = math.cos(math.radians(hue_deg)), math.sin(math.radians(hue_deg))
+    return cv2.transform(lab, np.array([[0.0, c, s, 128.0 * (1.0 - c - s)]], np.float32))
+
+
+def hue_contrast(lab, inside, around, hue_deg):
+    """Median chroma along ``hue_deg`` (``along_hue``) of the pixels of the 8-bit CIELAB image ``lab`` where
+    ``inside`` is set, less that of the pixels where ``around`` is set (a median of nothing is 0)."""
+    def median(values):
+        return float(np.median(values)) if len(values) else 0.0
+    return median(along_hue(lab, inside, hue_deg)) - median(along_hue(lab, around, hue_deg))

@@ -111,7 +111,10 @@ class ChromaConfig(Parameters):
     the chroma of a cast the white balance could not remove (``chroma.white_balance``) beyond which every class's
     chroma floor is raised by the excess; ``weak_*``: a second, weaker floor for faces too dim for a class's own,
     trusted only on a balanced image, for blobs that stand out from their surroundings and make good polygons
-    (``detection._with_weak_detections``)."""
+    (``detection._with_weak_detections``); ``surround_*``: every polygon stands out from a ring 3-6 px around it,
+    its median chroma along its class's hue above the ring's by ``surround_min_contrast`` of the class's floor, and
+    at most ``surround_max_share`` of the ring has half the floor (``detection.stands_out``): a block is an island
+    of colour on the table, a fragment of a larger coloured area (a button's cap, a tinted print, a glow) is not."""
     white_balance: bool = True
     max_gain: float = 2.0
     max_residual_cast: float = 5.0
@@ -119,6 +122,8 @@ class ChromaConfig(Parameters):
     weak_floor_fraction: float = 0.7
     weak_min_contrast: float = 16.0
     weak_min_quality: float = 0.3
+    surround_min_contrast: float = 0.5
+    surround_max_share: float = 0.7
     classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(150.0, 40.0, 19.0)})
 
     def validate(self):
@@ -128,6 +133,8 @@ class ChromaConfig(Parameters):
         self.require(0.0 < self.weak_floor_fraction <= 1.0, 'weak_floor_fraction', 'must be in (0, 1] (1 = off)')
         self.require(self.weak_min_contrast >= 0.0, 'weak_min_contrast', 'must be >= 0')
         self.require(0.0 <= self.weak_min_quality <= 1.0, 'weak_min_quality', 'must be in [0, 1]')
+        self.require(self.surround_min_contrast >= 0.0, 'surround_min_contrast', 'must be >= 0 (0 = off)')
+        self.require(0.0 < self.surround_max_share <= 1.0, 'surround_max_share', 'must be in (0, 1] (1 = off)')
         self.require(bool(self.classes), 'classes', 'must define at least one colour')
 
 
@@ -160,6 +167,7 @@ class VisionConfig(Parameters):
     flat_vertex_area_fraction: float = 0.05
     border_margin_px: float = 3.0
     border_edge_max_rms_px: float = 1.0
+    min_aspect: float = 0.2
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
     side_face_cut: SideFaceConfig = field(default_factory=SideFaceConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
@@ -178,6 +186,7 @@ class VisionConfig(Parameters):
                      'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
         self.require(self.cut_corner_clear_max_size_px >= 0, 'cut_corner_clear_max_size_px', 'must be >= 0')
         self.require(self.border_edge_max_rms_px > 0, 'border_edge_max_rms_px', 'must be > 0')
+        self.require(0.0 <= self.min_aspect < 1.0, 'min_aspect', 'must be in [0, 1) (0 = off)')
         self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
 

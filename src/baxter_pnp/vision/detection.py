@@ -23,6 +23,9 @@ from baxter_pnp.vision.topface import isolate_top_face
 _TIE_AREA_FRACTION = 0.02   # select_target: areas within 2 % of the largest count as a tie
 _RING_INNER = np.ones((5, 5), np.uint8)     # _with_weak_detections: a blob's colour is compared with a ring
 _RING_OUTER = np.ones((13, 13), np.uint8)   # 3-6 px around it (between dilations by these kernels)
+_SQUARE3 = np.ones((3, 3), np.uint8)        # stands_out: the band 1-5 px inside the polygon, between erosions
+_BAND_INNER = np.ones((11, 11), np.uint8)   # by these kernels; its box reaches the ring's outer edge
+_RING_REACH_PX = 7
 
 
 @dataclass
@@ -129,13 +132,14 @@ class ColourSegmenter:
         """``image_bgr`` (a region of the adapted image) white-balanced, in 8-bit CIELAB (chroma pipeline)."""
         return chroma.balanced_lab(image_bgr, self._gains)
 
-    def masks(self, image_bgr, colours=None, floor_fraction=1.0):
+    def masks(self, image_bgr, colours=None, floor_fraction=1.0, lab=None):
         """{colour: uint8 mask (255 inside)} of ``image_bgr`` (a region of the adapted image) for ``colours``
-        (chroma floors times ``floor_fraction``)."""
+        (chroma floors times ``floor_fraction``); ``lab``: its ``lab(image_bgr)``, if at hand."""
         colours = self.colours if colours is None else [c for c in self.colours if c in colours]
         if self.config.pipeline == 'chroma':
-            return chroma.class_masks(self.lab(image_bgr), {c: self.config.chroma.classes[c] for c in colours},
-                                      self._extra_chroma, floor_fraction)
+            return chroma.class_masks(self.lab(image_bgr) if lab is None else lab,
+                                      {c: self.config.chroma.classes[c] for c in colours}, self._extra_chroma,
+                                      floor_fraction)
         oversaturated = oversaturated_hsv(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV), self._threshold, self.config)
         return {c: colour_mask(oversaturated, self.config.colours[c]) for c in colours}
 
@@ -199,20 +203,21 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
     offset = np.array([x0, y0])
     detections = []
     discs = []
-    for colour, raw_mask in segmenter.masks(crop, colours).items():
+    lab = segmenter.lab(crop) if config.pipeline == 'chroma' else None
+    for colour, raw_mask in segmenter.masks(crop, colours, lab=lab).items():
         if not cv2.countNonZero(raw_mask):
             continue
         mask = open_close(raw_mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
         for blob in find_blobs(binary, config.min_area_px):
             detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs)
-            if detection is None or (config.pipeline == 'chroma' and colour_fill(
-                    raw_mask, detection.vertices_px - offset) < config.chroma.min_fill):
+            if detection is None or (config.pipeline == 'chroma' and (
+                    colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill
+                    or not stands_out(lab, detection, offset, config.chroma))):
                 continue
             detections.append(detection)
     if segmenter.weak_tier:      # the weaker floor where the class's own found nothing, or only poor polygons
         good = {d.colour for d in detections if d.quality >= config.chroma.weak_min_quality}
-        lab = segmenter.lab(crop) if set(colours) - good else None
         for colour in [c for c in segmenter.colours if c in colours and c not in good]:
             detections = _with_weak_detections(image_bgr, lab, colour, offset, hsv, detections, discs, shapes, config)
     return detections
@@ -252,7 +257,8 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
         detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes)
         least_quality = max([config.chroma.weak_min_quality] + [d.quality for d in fragments])
         if (detection is None or detection.quality < least_quality
-                or colour_fill(weak, detection.vertices_px - offset) < config.chroma.min_fill):
+                or colour_fill(weak, detection.vertices_px - offset) < config.chroma.min_fill
+                or not stands_out(lab, detection, offset, config.chroma)):
             continue
         found = [d for d in found if all(d is not f for f in fragments)] + [detection]
     return found
@@ -298,6 +304,46 @@ def _off_the_border(contour, offset, image_shape):
     return contour if inside.all() else contour[inside]
 
 
+def stands_out(lab, detection, offset, config):
+    """True when ``detection`` stands out from its surroundings in the 8-bit CIELAB image ``lab`` (a region whose
+    origin is ``offset`` in the image; ``config``: ``ChromaConfig``): along its outline, the median chroma along its
+    class's hue of a band 1-5 px inside it exceeds that of a ring 3-6 px outside it by ``surround_min_contrast``
+    times the class's chroma floor, and, unless it touches the image border, at most ``surround_max_share`` of the
+    ring reaches half that floor. A block on the table is an island of its colour (whatever the view, its side faces
+    lie along at most about half its outline, as in ``topface._reaches_a_half_turn``; a block cut by the border may
+    show only them); a polygon cut out of a larger area of the colour (a threshold's contour across a button's cap,
+    a tinted print, a glow) has the colour beyond it too (docs/perception.md, "Fragments of larger coloured
+    areas")."""
+    if config.surround_min_contrast == 0.0 and config.surround_max_share == 1.0:
+        return True
+    vertices_px = detection.vertices_px - offset
+    h, w = lab.shape[:2]
+    x0, y0 = np.maximum(np.floor(vertices_px.min(axis=0)).astype(int) - _RING_REACH_PX, 0)
+    x1, y1 = np.minimum(np.ceil(vertices_px.max(axis=0)).astype(int) + _RING_REACH_PX + 1, (w, h))
+    box = lab[y0:y1, x0:x1]
+    inside = np.zeros(box.shape[:2], np.uint8)
+    cv2.fillPoly(inside, [np.round((vertices_px - (x0, y0)) * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
+    around = cv2.subtract(cv2.dilate(inside, _RING_OUTER), cv2.dilate(inside, _RING_INNER))
+    band = cv2.subtract(cv2.erode(inside, _SQUARE3), cv2.erode(inside, _BAND_INNER))
+    colour_class = config.classes[detection.colour]
+    along = chroma.along_hue_image(box, colour_class.hue_deg)
+    ring = cv2.calcHist([along], [0], around, [256], [0, 256]).ravel()
+    if not ring.sum():
+        return True          # nothing around it to compare with (the polygon fills the image)
+    edge = cv2.calcHist([along], [0], band, [256], [0, 256]).ravel()
+    contrast = _histogram_median(edge) - _histogram_median(ring)
+    if contrast < config.surround_min_contrast * colour_class.min_chroma:
+        return False
+    return detection.touches_border or (
+        ring[128 + math.ceil(0.5 * colour_class.min_chroma):].sum() <= config.surround_max_share * ring.sum())
+
+
+def _histogram_median(histogram):
+    """The median bin (its index) of a non-empty (256,) histogram; 0 if it is empty."""
+    cumulative = np.cumsum(histogram)
+    return int(np.searchsorted(cumulative, 0.5 * cumulative[-1])) if cumulative[-1] else 0
+
+
 def colour_fill(mask, vertices_px):
     """Fraction of the polygon ``vertices_px`` (n, 2), shrunk by one pixel, that ``mask`` covers (0 if empty)."""
     inside = np.zeros(mask.shape, np.uint8)
@@ -317,6 +363,7 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     x (1 - fallbacks / (2 n)). A polygon cut by the image border with no edge of its own along a straight image
     edge (the sub-pixel stage's line within ``border_edge_max_rms_px``) is None: its straight side is the
     border's, nothing says it is a block's (a button cut by the border, docs/perception.md "Border-cut fragments").
+    A coarse polygon narrower than ``min_aspect`` (``_aspect``) is None: a sliver of tape or of a board's edge.
     """
     hull = cv2.convexHull(outline)
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)
@@ -330,7 +377,7 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction,
                                 config.cut_corner_clear_max_size_px)
     shape = classify_shape(len(coarse))
-    if shape is None:
+    if shape is None or _aspect(coarse) < config.min_aspect:
         return None
     coarse = fit_polygon_sides(outline, coarse) + offset
     if config.side_face_cut.enabled:
@@ -355,6 +402,13 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
                      centroid_px=np.array([moments['m10'], moments['m01']]) / moments['m00'],
                      area_px=float(moments['m00']), quality=float(np.clip(quality, 0.0, 1.0)),
                      touches_border=touches, contour=(outline + offset).astype(np.int32))
+
+
+def _aspect(polygon):
+    """Short over long side of the least-area rectangle around ``polygon`` (n, 1, 2) or (n, 2) (0 for a degenerate
+    one): 0.87-1 for a regular polygon seen along its normal, times the cosine of the angle off it."""
+    (_, _), (width, height), _ = cv2.minAreaRect(np.asarray(polygon, np.float32).reshape(-1, 2))
+    return min(width, height) / max(width, height) if max(width, height) > 0 else 0.0
 
 
 def select_target(detections, shape, colour, image_size):

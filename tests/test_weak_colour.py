@@ -67,8 +67,8 @@ def test_a_dim_face_on_a_grey_table_is_found_below_its_class_floor(config):
 
 def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
     """The same square on a patch tinted towards blue (chroma 9, under the weaker floor): it stands 8 above its
-    surroundings, under ``weak_min_contrast`` (and under ``surround_min_contrast``'s 10), as the real frames' black
-    print on a bluish board does."""
+    surroundings, under ``weak_min_contrast`` (and under ``surround_min_contrast``'s 10; its ring is all of the tint,
+    over ``surround_share_floor``), as the real frames' black print on a bluish board does."""
     lab = lab_image()
     patch = np.zeros(lab.shape[:2], np.uint8)
     patch[60:180, 90:230] = 255
@@ -77,8 +77,8 @@ def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
     image = to_bgr(lab)
     assert vision.detect(image, config) == []
     assert vision.detect(image, with_chroma(config, weak_min_contrast=5.0)) == []
-    assert [d.colour for d in vision.detect(image, with_chroma(config, weak_min_contrast=5.0,
-                                                               surround_min_contrast=0.3))] == ['blue']
+    assert [d.colour for d in vision.detect(image, with_chroma(config, weak_min_contrast=5.0, surround_min_contrast=0.3,
+                                                               surround_max_share=1.0))] == ['blue']
 
 
 def test_a_refused_disc_is_not_found_again_at_the_weaker_floor(config):

@@ -113,8 +113,9 @@ class ChromaConfig(Parameters):
     trusted only on a balanced image, for blobs that stand out from their surroundings and make good polygons
     (``detection._with_weak_detections``); ``surround_*``: every polygon stands out from a ring 3-6 px around it,
     its median chroma along its class's hue above the ring's by ``surround_min_contrast`` of the class's floor, and
-    at most ``surround_max_share`` of the ring has half the floor (``detection.stands_out``): a block is an island
-    of colour on the table, a fragment of a larger coloured area (a button's cap, a tinted print, a glow) is not."""
+    at most ``surround_max_share`` of the ring has ``surround_share_floor`` of the floor (``detection.stands_out``):
+    a block is an island of colour on the table, a fragment of a larger coloured area (a button's cap, a tinted
+    print, a glow) is not."""
     white_balance: bool = True
     max_gain: float = 2.0
     max_residual_cast: float = 5.0
@@ -124,6 +125,7 @@ class ChromaConfig(Parameters):
     weak_min_quality: float = 0.3
     surround_min_contrast: float = 0.5
     surround_max_share: float = 0.7
+    surround_share_floor: float = 0.3
     classes: Dict[str, ColourClass] = field(default_factory=lambda: {'green': ColourClass(150.0, 40.0, 19.0)})
 
     def validate(self):
@@ -135,6 +137,7 @@ class ChromaConfig(Parameters):
         self.require(0.0 <= self.weak_min_quality <= 1.0, 'weak_min_quality', 'must be in [0, 1]')
         self.require(self.surround_min_contrast >= 0.0, 'surround_min_contrast', 'must be >= 0 (0 = off)')
         self.require(0.0 < self.surround_max_share <= 1.0, 'surround_max_share', 'must be in (0, 1] (1 = off)')
+        self.require(0.0 < self.surround_share_floor <= 1.0, 'surround_share_floor', 'must be in (0, 1]')
         self.require(bool(self.classes), 'classes', 'must define at least one colour')
 
 

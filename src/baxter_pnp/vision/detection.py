@@ -309,7 +309,7 @@ def stands_out(lab, detection, offset, config):
     origin is ``offset`` in the image; ``config``: ``ChromaConfig``): along its outline, the median chroma along its
     class's hue of a band 1-5 px inside it exceeds that of a ring 3-6 px outside it by ``surround_min_contrast``
     times the class's chroma floor, and, unless it touches the image border, at most ``surround_max_share`` of the
-    ring reaches half that floor. A block on the table is an island of its colour (whatever the view, its side faces
+    ring reaches ``surround_share_floor`` of that floor. A block on the table is an island of its colour (whatever the view, its side faces
     lie along at most about half its outline, as in ``topface._reaches_a_half_turn``; a block cut by the border may
     show only them); a polygon cut out of a larger area of the colour (a threshold's contour across a button's cap,
     a tinted print, a glow) has the colour beyond it too (docs/perception.md, "Fragments of larger coloured
@@ -335,7 +335,8 @@ def stands_out(lab, detection, offset, config):
     if contrast < config.surround_min_contrast * colour_class.min_chroma:
         return False
     return detection.touches_border or (
-        ring[128 + math.ceil(0.5 * colour_class.min_chroma):].sum() <= config.surround_max_share * ring.sum())
+        ring[128 + math.ceil(config.surround_share_floor * colour_class.min_chroma):].sum()
+        <= config.surround_max_share * ring.sum())
 
 
 def _histogram_median(histogram):

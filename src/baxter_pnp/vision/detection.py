@@ -88,7 +88,7 @@ def detect(image_bgr, config, colours=None, shapes=None):
         regions = _candidate_regions(image_bgr, segmenter, config)
     else:
         segmenter.adapt(_subsampled(image_bgr, config.roi.downsample))     # the same adaptation as with the ROI
-        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), set(colours))]
+        regions = [((0, 0, image_bgr.shape[1], image_bgr.shape[0]), {colour: math.inf for colour in colours})]
     detections = []
     for region, region_colours in regions:
         detections.extend(_detect_in_region(image_bgr, region, segmenter, region_colours, shapes, config))
@@ -145,11 +145,12 @@ class ColourSegmenter:
 
 
 def _candidate_regions(image_bgr, segmenter, config):
-    """The regions ``((x0, y0, x1, y1), colours)`` to search, ``segmenter`` adapted to the image on the way.
+    """The regions ``((x0, y0, x1, y1), {colour: blob count})`` to search, ``segmenter`` adapted to the image on the
+    way.
 
     Runs the colour stage on the image subsampled by ``roi.downsample`` (nearest pixel; at the weaker floor when
     ``segmenter.weak_tier``); each blob of a colour gives a box padded by ``roi.padding_px``; overlapping boxes are
-    merged (with their colours) so that every blob lies whole inside exactly one region.
+    merged (their colours' blob counts added) so that every blob lies whole inside exactly one region.
     """
     f = config.roi.downsample
     h, w = image_bgr.shape[:2]
@@ -165,7 +166,7 @@ def _candidate_regions(image_bgr, segmenter, config):
         for x, y, bw, bh, area in stats[1:]:
             if area * f * f >= 0.25 * config.min_area_px:
                 boxes.append(((max(0, x * f - pad), max(0, y * f - pad),
-                               min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour}))
+                               min(w, (x + bw) * f + pad), min(h, (y + bh) * f + pad)), {colour: 1}))
     return _merge_boxes(boxes)
 
 
@@ -176,7 +177,7 @@ def _subsampled(image_bgr, factor):
 
 
 def _merge_boxes(boxes):
-    """Union of overlapping ``((x0, y0, x1, y1), colours)`` boxes (and of their colour sets) until none overlap."""
+    """Union of overlapping ``((x0, y0, x1, y1), {colour: count})`` boxes (their counts added) until none overlap."""
     boxes = list(boxes)
     merged = True
     while merged:
@@ -186,7 +187,7 @@ def _merge_boxes(boxes):
                 (a, colours_a), (b, colours_b) = boxes[i], boxes[j]
                 if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
                     boxes[i] = ((min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3])),
-                                colours_a | colours_b)
+                                {c: colours_a.get(c, 0) + colours_b.get(c, 0) for c in {**colours_a, **colours_b}})
                     del boxes[j]
                     merged = True
                     break
@@ -196,7 +197,9 @@ def _merge_boxes(boxes):
 
 
 def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
-    """Detections of ``colours`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image."""
+    """Detections of ``colours`` whose blobs lie in ``region`` = (x0, y0, x1, y1) of the full image; ``colours``:
+    {colour: the candidate search's blobs of it in the region (inf: not counted)}. The weaker floor runs for a colour
+    with fewer good detections than blobs (``_with_weak_detections``: a dim block beside one the floor found)."""
     x0, y0, x1, y1 = region
     crop = image_bgr[y0:y1, x0:x1]
     hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
@@ -216,10 +219,12 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
                     or not stands_out(lab, detection, offset, config.chroma))):
                 continue
             detections.append(detection)
-    if segmenter.weak_tier:      # the weaker floor where the class's own found nothing, or only poor polygons
-        good = {d.colour for d in detections if d.quality >= config.chroma.weak_min_quality}
-        for colour in [c for c in segmenter.colours if c in colours and c not in good]:
-            detections = _with_weak_detections(image_bgr, lab, colour, offset, hsv, detections, discs, shapes, config)
+    if segmenter.weak_tier:      # the weaker floor for the blobs where the class's own found nothing good
+        for colour in [c for c in segmenter.colours if c in colours]:
+            good = sum(d.colour == colour and d.quality >= config.chroma.weak_min_quality for d in detections)
+            if good < colours[colour]:
+                detections = _with_weak_detections(image_bgr, lab, colour, offset, hsv, detections, discs, shapes,
+                                                   config)
     return detections
 
 
@@ -227,9 +232,10 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
     """``found`` (the region's detections) with those of ``colour`` at the weaker floor: a face too dim for its
     class's floor (a dark die on a dark table) is segmented at ``weak_floor_fraction`` of it (``ChromaConfig``).
 
-    A blob of that weaker mask counts when it overlaps no detection of another colour, no refused disc (``discs``,
-    region coordinates) and only detections of ``colour`` of lower quality (the fragments of a face the floor cut
-    up), which it then replaces; when its median chroma along the class's hue exceeds that of a ring 3-6 px around
+    A blob of that weaker mask counts when it holds no detection of ``colour`` of ``weak_min_quality`` (a face the
+    class's floor found; a dim block beside it is a blob of its own), overlaps no detection of another colour, no
+    refused disc (``discs``, region coordinates) and only detections of ``colour`` of lower quality (the fragments
+    of a face the floor cut up), which it then replaces; when its median chroma along the class's hue exceeds that of a ring 3-6 px around
     it by ``weak_min_contrast`` (a dim block on a grey table stands 16-27 above it; the tinted black print and
     chessboard squares of the real frames 2-14 above theirs); and when its polygon has ``weak_min_quality``
     (cables, tinted shadows: 0.08-0.34) and the usual colour fill on the weaker mask. ``lab``: the region's
@@ -245,7 +251,11 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
             cv2.fillPoly(claimed, [np.round(d.vertices_px - offset).astype(np.int32)], 255)
     mask = open_close(weak, config.morphology_kernel_px)
     binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
+    good = [tuple(map(float, d.centroid_px - offset)) for d in found
+            if d.colour == colour and d.quality >= config.chroma.weak_min_quality]
     for blob in find_blobs(binary, config.min_area_px):
+        if any(cv2.pointPolygonTest(blob, centre, False) >= 0 for centre in good):
+            continue
         inside = np.zeros(weak.shape, np.uint8)
         cv2.drawContours(inside, [blob], -1, 255, cv2.FILLED)
         if cv2.countNonZero(cv2.bitwise_and(inside, claimed)):

@@ -249,15 +249,18 @@ def format_latency(results):
 
 
 REAL_DEFAULT = os.environ.get('BAXTER_PNP_REAL_DATA', os.path.join(PACKAGE_ROOT, '..', 'shared', 'real'))
+REAL_LABELS = os.path.join(PACKAGE_ROOT, 'tests', 'data', 'real_labels.yaml')   # the real cubes' labels
 PHOTOMETRIC_SEED_OFFSET = 90                  # measure_photometric's frames' seeds: their own
 
 
 def measure_photometric(kinds, count, seed, camera, config, real_dir):
-    """``photometric``'s two measures: the false detections on the real frames of ``real_dir`` that show no
-    block, and the blocks of ``count`` frames of each independent-renderer set of ``kinds`` found, under every
-    photometric change. Returns ``(false_found, frame_count, blocks)`` as ``photometric.format_tables`` takes them."""
+    """``photometric``'s measures: the false detections on the real frames of ``real_dir`` that show no block, the
+    labelled real cubes found (``REAL_LABELS``) and the blocks of ``count`` frames of each independent-renderer set
+    of ``kinds`` found, under every photometric change. Returns ``(false_found, frame_count, blocks)`` as
+    ``photometric.format_tables`` takes them."""
     frames = photometric.real_negative_frames(real_dir)
-    blocks = {}
+    cubes = photometric.real_cubes_found(real_dir, REAL_LABELS, config)
+    blocks = {'real cubes': cubes} if cubes else {}
     for kind in [k for k in kinds if k in R2_DATASETS]:
         frame_seed = seed + 100 * (PROJECT_DATASETS + R2_DATASETS).index(kind) + PHOTOMETRIC_SEED_OFFSET
         blocks[kind] = photometric.blocks_found(make_dataset(kind, count, frame_seed, camera), camera, config,

@@ -1,8 +1,9 @@
 """Photometric robustness (``make bench-perception``'s last tables): the real frames that show no coloured block
-(``../shared/real``: the Baxter lab frames, the blue-tinted chessboard frames and the printed shapes) and the
-independent renderer's blocks, each under the changes another camera, exposure or lab brings: exposure, a colour
-cast, gamma, vignetting, a coloured glow in an image corner, saturation. Counted: what the vision finds on the real
-frames (all of it is false) and how many blocks it still finds. A detector tuned on a few real frames can be right
+(``../shared/real``: the Baxter lab frames, the blue-tinted chessboard frames and the printed shapes), the real
+cubes labelled in ``tests/data/real_labels.yaml`` and the independent renderer's blocks, each under the changes
+another camera, exposure or lab brings: exposure, a colour cast, gamma, vignetting, a coloured glow in an image
+corner, saturation. Counted: what the vision finds on the blockless frames (all of it is false) and how many
+blocks it still finds. A detector tuned on a few real frames can be right
 on them and wrong one exposure step away (docs/perception.md, "Fragments of larger coloured areas").
 
 Images are BGR uint8 in and out; every change is deterministic."""
@@ -11,6 +12,7 @@ import os
 
 import cv2
 import numpy as np
+import yaml
 
 from baxter_pnp import vision
 from baxter_pnp.bench import render_independent
@@ -20,6 +22,7 @@ GLOW_BGR = (0.0, 10.0, 60.0)       # a reddish glow (lens flare, a warm lamp) ad
 GLOW_SIGMA_FRACTION = 0.125        # ... a Gaussian of this fraction of the image width
 FOUND_CENTROID_FRACTION = 0.15     # a block is found when its detection's centroid lies within this fraction of
                                    # its size (the square root of its projected area) of the true one
+CUBE_CENTROID_PX = 4.0             # a labelled real cube, when within this of its labelled centre (its test's)
 
 
 def _gains(image, gains_bgr):
@@ -73,6 +76,30 @@ def real_negative_frames(real_dir):
     return [(name, image) for name, image in frames if image is not None]
 
 
+def real_cubes_found(real_dir, labels_path, config):
+    """{variant: (found, count)} of the labelled cubes (``labels_path``: ``tests/data/real_labels.yaml``, pixel
+    centres of the photos in ``real_dir``/coloured_cubes, stored with red and blue swapped) under each of
+    ``VARIANTS``: a square of the label's colour within ``CUBE_CENTROID_PX`` of its centre; {} without the photos or
+    the labels."""
+    if not os.path.exists(labels_path):
+        return {}
+    with open(labels_path) as f:
+        labels = yaml.safe_load(f)
+    counts = {variant: [0, 0] for variant in VARIANTS}
+    for name, entry in labels['images'].items():
+        image = cv2.imread(os.path.join(real_dir, 'coloured_cubes', name))
+        if image is None:
+            return {}
+        image = np.ascontiguousarray(image[..., ::-1])
+        for variant, change in VARIANTS.items():
+            detections = vision.detect(change(image), config)
+            counts[variant][1] += len(entry['cubes'])
+            counts[variant][0] += sum(any(d.colour == cube['colour'] and d.shape == 'square'
+                                          and np.linalg.norm(d.centroid_px - cube['centre']) <= CUBE_CENTROID_PX
+                                          for d in detections) for cube in entry['cubes'])
+    return {variant: tuple(count) for variant, count in counts.items()}
+
+
 def false_detections(frames, config):
     """{variant: [(frame, colour, shape, (u, v))]}: every detection (all of them false) on ``frames`` under each
     of ``VARIANTS``."""
@@ -102,8 +129,8 @@ def blocks_found(samples, camera, config, rng):
 
 
 def format_tables(false_found, frame_count, blocks):
-    """Markdown: the false detections on the real frames per variant, and ``blocks`` ({dataset: blocks_found's
-    result}) found per variant."""
+    """Markdown: the false detections on the real frames per variant, and ``blocks`` ({dataset: blocks_found's or
+    real_cubes_found's result}) found per variant."""
     lines = ['| change | false detections on %d real frames | of them squares |' % frame_count, '|---|---|---|']
     lines += ['| %s | %d | %d |' % (variant, len(found), sum(shape == 'square' for _, _, shape, _ in found))
               for variant, found in false_found.items()]

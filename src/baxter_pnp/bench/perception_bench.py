@@ -516,12 +516,14 @@ def main(argv=None):
     if args.photometric_frames > 0:
         false_found, frame_count, blocks = measure_photometric(args.datasets, args.photometric_frames, args.seed,
                                                                camera, config, args.real)
+        found_json = {kind: {variant: list(count) for variant, count in found.items()}
+                      for kind, found in blocks.items()}
         with open(os.path.join(args.out, 'photometric.json'), 'w') as f:
-            json.dump({'false_detections': false_found, 'real_frames': frame_count,
-                       'blocks_found': {kind: {v: list(c) for v, c in found.items()} for kind, found in blocks.items()}},
-                      f, indent=1)
-        print('\nphotometric changes (real frames with no block%s; independent renderer\'s blocks)\n\n%s' % (
-            '' if frame_count else ': none at %s' % args.real, photometric.format_tables(false_found, frame_count, blocks)))
+            json.dump({'false_detections': false_found, 'real_frames': frame_count, 'blocks_found': found_json}, f,
+                      indent=1)
+        print('\nphotometric changes (real frames with no block%s; real cubes; independent renderer\'s blocks)\n\n%s'
+              % ('' if frame_count else ': none at %s' % args.real,
+                 photometric.format_tables(false_found, frame_count, blocks)))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)

@@ -235,11 +235,12 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
     A blob of that weaker mask counts when it holds no detection of ``colour`` of ``weak_min_quality`` (a face the
     class's floor found; a dim block beside it is a blob of its own), overlaps no detection of another colour, no
     refused disc (``discs``, region coordinates) and only detections of ``colour`` of lower quality (the fragments
-    of a face the floor cut up), which it then replaces; when its median chroma along the class's hue exceeds that of a ring 3-6 px around
-    it by ``weak_min_contrast`` (a dim block on a grey table stands 16-27 above it; the tinted black print and
-    chessboard squares of the real frames 2-14 above theirs); and when its polygon has ``weak_min_quality``
-    (cables, tinted shadows: 0.08-0.34) and the usual colour fill on the weaker mask. ``lab``: the region's
-    balanced CIELAB image (``ColourSegmenter.lab``); ``hsv``: its HSV; ``offset``: its origin in the image."""
+    of a face the floor cut up), which it then replaces; when its median chroma along the class's hue exceeds that
+    of a ring 3-6 px around it by ``weak_min_contrast`` (a dim block on a grey table stands 16-27 above it; the
+    tinted black print and chessboard squares of the real frames 2-14 above theirs); when its polygon has
+    ``weak_min_quality`` (cables, tinted shadows: 0.08-0.34), the usual colour fill on the weaker mask and stands
+    out (``stands_out``). ``lab``: the region's balanced CIELAB image (``ColourSegmenter.lab``); ``hsv``: its HSV;
+    ``offset``: its origin in the image."""
     colour_class = config.chroma.classes[colour]
     weak = chroma.class_masks(lab, {colour: colour_class}, floor_fraction=config.chroma.weak_floor_fraction)[colour]
     if not cv2.countNonZero(weak):
@@ -319,11 +320,11 @@ def stands_out(lab, detection, offset, config):
     origin is ``offset`` in the image; ``config``: ``ChromaConfig``): along its outline, the median chroma along its
     class's hue of a band 1-5 px inside it exceeds that of a ring 3-6 px outside it by ``surround_min_contrast``
     times the class's chroma floor, and, unless it touches the image border, at most ``surround_max_share`` of the
-    ring reaches ``surround_share_floor`` of that floor. A block on the table is an island of its colour (whatever the view, its side faces
-    lie along at most about half its outline, as in ``topface._reaches_a_half_turn``; a block cut by the border may
-    show only them); a polygon cut out of a larger area of the colour (a threshold's contour across a button's cap,
-    a tinted print, a glow) has the colour beyond it too (docs/perception.md, "Fragments of larger coloured
-    areas")."""
+    ring reaches ``surround_share_floor`` of that floor. A block on the table is an island of its colour (whatever
+    the view, its side faces lie along at most about half its outline, as in ``topface._reaches_a_half_turn``; a
+    block cut by the border may show only them); a polygon cut out of a larger area of the colour (a threshold's
+    contour across a button's cap, a tinted print, a glow) has the colour beyond it too (docs/perception.md,
+    "Fragments of larger coloured areas")."""
     if config.surround_min_contrast == 0.0 and config.surround_max_share == 1.0:
         return True
     vertices_px = detection.vertices_px - offset

@@ -73,18 +73,19 @@ def _centroid(mask):
     return np.array([m['m10'] / m['m00'], m['m01'] / m['m00']]), m['m00']
 
 
-def _frame_and_info(images, infos, width, since, timeout):
-    """The newest image of ``width`` px stamped at or after ``since`` (s) with the camera_info of the same stamp.
-    A reopened camera advertises its topics anew and the two subscribers reconnect one after the other, so the
-    first frames of a mode may come without their camera_info (or the reverse)."""
+def _frame_and_info(images, infos, width, binning, since, timeout):
+    """The newest image of ``width`` px stamped at or after ``since`` (s) with the camera_info of the same stamp and
+    ``binning``. A reopened camera advertises its topics anew and the two subscribers reconnect one after the other,
+    so the first frames of a mode may come without their camera_info (or the reverse); and a frame of the previous
+    mode, of the same width unbinned (320x200 before the binned 320x200), may still come after ``since``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        stamps = {m.header.stamp: m for _, m in infos.messages if m.width == width}
+        stamps = {m.header.stamp: m for _, m in infos.messages if m.width == width and m.binning_x == binning}
         for _, image in reversed(images.messages):
             if image.width == width and image.header.stamp.to_sec() >= since and image.header.stamp in stamps:
                 return image, stamps[image.header.stamp]
         time.sleep(0.005)
-    raise AssertionError(f'no {width} px image with its camera_info within {timeout} s')
+    raise AssertionError(f'no {width} px image with its camera_info (binning {binning}) within {timeout} s')
 
 
 def test_every_camera_mode_shows_the_block_where_the_model_projects_it(robot, kin, scene):
@@ -104,7 +105,7 @@ def test_every_camera_mode_shows_the_block_where_the_model_projects_it(robot, ki
             controls = [msg.CameraControl(id=RESOLUTION_HALF_CONTROL, value=1)] if binning == 2 else []
             settings = msg.CameraSettings(width=width, height=height, fps=10.0, controls=controls)
             assert open_camera('left_hand_camera', settings).err == 0
-            image, info = _frame_and_info(images, infos, width, opened_at, 20.0)
+            image, info = _frame_and_info(images, infos, width, binning, opened_at, 20.0)
             assert (image.height, image.encoding, info.height) == (height, 'bgra8', height)
             # the mode's centred window of the 1280x800 sensor as roi, binned 2x2 at half resolution
             roi = (info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height)

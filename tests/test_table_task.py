@@ -122,11 +122,13 @@ def test_survey_prints_the_map_then_clear_moves_every_block_to_one_area(ros_mast
             assert ': %s square at x ' % colour in line, line
             x, y = (float(line.split(' %s ' % axis)[1].split()[0]) / 1000 for axis in ('x', 'y'))
             truth = before[0 if colour == 'green' else 1]
-            # 8 mm: the red square at (0.45, 0) is seen by one survey view only, near its edge from 0.43 m up;
-            # measured 6.2 mm off. The map says how far it may be: within 3 of its stds (session 9 reported
-            # +-1.2 mm, the lateral error only; the estimator's covariance has the error along the ray)
+            # 12 mm: the red square at (0.45, 0) is seen by one survey view only, near its edge from 0.43 m up,
+            # and the map reports it +-5.3-6.4 mm: 3.2-3.5 mm off in 11 runs alone or under load, 9.4 mm once in a
+            # full suite (session 18; the frame's noise and blur depend on when it is taken). The map says how far
+            # it may be: within 3 of its stds (session 9 reported +-1.2 mm, the lateral error only; the
+            # estimator's covariance has the error along the ray)
             error, std = np.hypot(x - truth[0, 3], y - truth[1, 3]), float(line.split('+- ')[1].split()[0]) / 1000
-            assert error < 0.008 and error <= 3 * std, line
+            assert error < 0.012 and error <= 3 * std, line
         assert len(json.loads((out / 'table_map.json').read_text())['blocks']) == 2
         run, result, _ = run_task(ros_master, tmp_path, 'clear', 'clear', '--to', '%s,%s' % tuple(area[0]))
         assert run.returncode == 0 and result['success'], run.log()[-3000:]

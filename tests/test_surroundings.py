@@ -95,7 +95,7 @@ def test_a_clipped_highlight_stays_grey_and_a_clipped_colour_keeps_its_hue():
     assert balanced[0, 0].tolist() == [224, 224, 224]
     assert balanced[0, 1].tolist() == [42, 53, 224]
     assert balanced[0, 2].tolist() == [106, 97, 106]          # below the ceiling: the gains alone
-    hue, chroma_of, _ = chroma.hue_and_chroma(cv2.cvtColor(balanced, cv2.COLOR_BGR2LAB).reshape(-1, 3))
+    _, chroma_of, _ = chroma.hue_and_chroma(cv2.cvtColor(balanced, cv2.COLOR_BGR2LAB).reshape(-1, 3))
     assert chroma_of[0] < 1.0 and chroma_of[1] > 50.0
 
 

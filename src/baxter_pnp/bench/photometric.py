@@ -3,8 +3,8 @@
 cubes labelled in ``tests/data/real_labels.yaml`` and the independent renderer's blocks, each under the changes
 another camera, exposure or lab brings: exposure, a colour cast, gamma, vignetting, a coloured glow in an image
 corner, saturation. Counted: what the vision finds on the blockless frames (all of it is false) and how many
-blocks it still finds. A detector tuned on a few real frames can be right
-on them and wrong one exposure step away (docs/perception.md, "Fragments of larger coloured areas").
+blocks it still finds. A detector tuned on a few real frames can be right on them and wrong one exposure step away
+(docs/perception.md, "Fragments of larger coloured areas").
 
 Images are BGR uint8 in and out; every change is deterministic."""
 import glob

@@ -51,9 +51,14 @@ Beyond the thesis (all switchable in the YAML):
 - Side faces as bright as the top (``cut_side_faces``, polygons of 40 px and more): an edge with a crease
   inside it, a straight step of V nearly parallel to it all along it, the strip before it evenly darker than
   the face beyond, is moved onto the crease (docs/perception.md, "Side faces as bright as the top").
-- A weaker chroma floor (``chroma.weak_*``): where a colour's floor finds nothing in a region, or only poor
-  fragments of a face, its blobs at 0.7 of the floor count when they stand out from their surroundings along the
-  colour's hue and make good polygons (a dim die on a dark table; docs/perception.md, "Dim faces").
+- A weaker chroma floor (``chroma.weak_*``): for the blobs where a colour's floor found nothing good (the
+  candidate search saw more blobs of the colour in a region than it has good detections), blobs at 0.7 of the floor
+  count when they stand out from their surroundings along the colour's hue and make good polygons (a dim die on a
+  dark table, a dim cube beside a bright one; docs/perception.md, "Dim faces").
+- Islands of colour (``chroma.surround_*``, ``stands_out``): a polygon must stand out from a ring 3-6 px around
+  it along its hue, and its colour may fill at most 70 % of that ring (a fragment of a larger coloured area, a
+  button's cap, a tinted print, a glow, is no block); a polygon narrower than ``min_aspect`` is a sliver; white-
+  balanced highlights clipped in one channel stay grey (docs/perception.md, "Fragments of larger coloured areas").
 - Sub-pixel vertices (``refine_vertices``): each edge is re-measured on the original image along its
   normal and a line is fitted to the edge points (Huber), consecutive lines intersected. The edge
   point of a profile comes from a two-colour model, top face and table: the table's share locates the

@@ -1,5 +1,6 @@
 """The independent renderer (bench/render_independent.py): its ground truth against what it draws, its determinism,
 and the perception benchmark's ``_r2`` datasets built, measured and dumped end to end."""
+import argparse
 import math
 import os
 
@@ -174,6 +175,21 @@ def test_r2_datasets_built_measured_and_dumped(camera, tmp_path):
     missed = sum(not r['detected'] for r in rows if r['estimator'] == 'sqp')
     assert len(paths) == 3 + min(3, missed) and all(os.path.getsize(p) > 0 for p in paths)
     assert len(open(tmp_path / 'worst.tsv').read().splitlines()) == 1 + len(paths)
+
+
+def test_seed_spread_draws_each_set_again_from_each_seed(camera):
+    """``--seeds``: each dataset drawn anew from each seed (other blocks, other poses), summarised per seed."""
+    config = vision.VisionConfig.from_yaml(None)
+    results = perception_bench.measure_seed_spread(['small_r2'], [5, 6], {'small_r2': 2}, camera, config)
+    assert [(r['dataset'], r['seed'], r['frames']) for r in results] == [('small_r2', 5, 2), ('small_r2', 6, 2)]
+    first, second = (perception_bench.make_dataset('small_r2', 2, seed + 600, camera) for seed in (5, 6))
+    assert not np.allclose(first[0][1], second[0][1])
+    table = perception_bench.format_seed_spread(results).splitlines()
+    assert len(table) == 4 and table[2].startswith('| small_r2 | 5 | 2 |')
+    assert perception_bench.seed_list('1, 7,13') == [1, 7, 13]
+    for bad in ('', 'a,1'):
+        with pytest.raises(argparse.ArgumentTypeError):
+            perception_bench.seed_list(bad)
 
 
 def test_latency_is_measured_on_the_hand_cameras_640x400_frames(camera):

@@ -211,6 +211,30 @@ def run_dataset(kind, samples, camera, config, seed, crops=None, estimators=ESTI
     return rows
 
 
+def measure_seed_spread(kinds, seeds, counts, camera, config):
+    """The ``sqp`` summary (``summarise``) of each dataset of ``kinds`` rendered from each of ``seeds`` (``counts``:
+    frames per dataset; each set's seed offset as in ``main``), a ``seed`` key added: how far a rate or an error
+    moves between two draws of the same set, against which a change's effect is judged."""
+    results = []
+    for kind in kinds:
+        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
+        for seed in seeds:
+            samples = make_dataset(kind, counts[kind], seed + 100 * offset, camera)
+            rows = run_dataset(kind, samples, camera, config, seed + 100 * offset, estimators=('sqp',))
+            results.append(dict(summarise(rows, kind, 'sqp'), seed=seed))
+    return results
+
+
+def format_seed_spread(results):
+    """Markdown table of ``measure_seed_spread``'s results, one row per dataset and seed."""
+    lines = ['| dataset | seed | frames | detected | vertex mean px | pos med mm | pos p90 mm |',
+             '|---|---|---|---|---|---|---|']
+    lines += ['| %s | %d | %d | %.1f%% | %.3f | %.2f | %.2f |' % (
+        r['dataset'], r['seed'], r['frames'], 100.0 * r['detection_rate'], r['vertex_err_px_mean'],
+        r['position_err_mm_median'], r['position_err_mm_p90']) for r in results]
+    return '\n'.join(lines)
+
+
 HAND_CAMERA_MODE = (640, 400)    # px: the mode a real Baxter hand camera publishes (README, "On a real Baxter")
 LATENCY_SEED_OFFSET = 50          # the latency frames' seeds: their own, not the accuracy sets'
 
@@ -433,6 +457,17 @@ def format_table(summaries):
     return '\n'.join(lines)
 
 
+def seed_list(text):
+    """The integer seeds of a ``--seeds`` value (comma-separated); ArgumentTypeError otherwise."""
+    try:
+        seeds = [int(part) for part in text.split(',') if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected comma-separated integers, got {text!r}') from None
+    if not seeds:
+        raise argparse.ArgumentTypeError('no seed given')
+    return seeds
+
+
 def dataset_list(text):
     """The dataset names of a ``--datasets`` value: comma-separated names, ``project`` (the project renderer's
     sets), ``r2`` (the independent renderer's) or ``all``; ArgumentTypeError on an unknown name."""
@@ -464,6 +499,9 @@ def main(argv=None):
                         help='save crops of the N found targets with the largest vertex error and of N missed ones '
                              '(truth green, target red, other detections yellow)')
     parser.add_argument('--worst-dir', default=None, help='where the crops go (default OUT/worst)')
+    parser.add_argument('--seeds', type=seed_list, default=[], metavar='S1,S2,...',
+                        help='also draw each dataset from these seeds (sqp only) and print detection and accuracy per '
+                             'seed: the spread between draws of one set, against which a change is judged')
     parser.add_argument('--latency-frames', type=int, default=150, metavar='N',
                         help='frames of each dataset rendered at 640x400 (a Baxter hand camera\'s mode) for the '
                              'latency table, vision + sqp (default 150; depth161 has 56; 0: no latency table)')
@@ -502,6 +540,12 @@ def main(argv=None):
         chosen = [s for s in summaries if s['dataset'] in kinds]
         if chosen:
             print('\n%s\n\n%s' % (title, format_table(chosen)))
+    if args.seeds:
+        spread = measure_seed_spread(args.datasets, args.seeds, {**{kind: args.r2_frames for kind in R2_DATASETS},
+                                                                 **counts}, camera, config)
+        with open(os.path.join(args.out, 'seed_spread.json'), 'w') as f:
+            json.dump(spread, f, indent=1)
+        print('\nthe same sets drawn from other seeds (sqp)\n\n%s' % format_seed_spread(spread))
     if args.latency_frames > 0:
         counts = {kind: 56 if kind == 'depth161' else args.latency_frames for kind in args.datasets}
         latency = measure_latency(args.datasets, counts, args.seed, hand_camera(camera), config)
@@ -529,5 +573,5 @@ def main(argv=None):
         save_worst(rows, crops, directory, args.worst)
         print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
     print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json, border_cuts.json, '
-          'photometric.json)' % (args.out, args.out))
+          'photometric.json, seed_spread.json)' % (args.out, args.out))
     return 0

@@ -56,6 +56,12 @@ def limit_to_one_core():
     cv2.setNumThreads(1)
 
 
+def set_seed(kind, seed):
+    """The seed dataset ``kind`` is drawn from for the run seed ``seed`` (``--seed``): each set's own, whatever else
+    is run."""
+    return seed + 100 * (PROJECT_DATASETS + R2_DATASETS).index(kind)
+
+
 def make_dataset(kind, count, seed, camera):
     """List of (block, T_camera_block, colour name) for dataset ``kind``: a ``synthetic.BlockSpec`` for the
     project's renderer, a ``render_independent.Block`` for the ``_r2`` sets."""
@@ -217,10 +223,9 @@ def measure_seed_spread(kinds, seeds, counts, camera, config):
     moves between two draws of the same set, against which a change's effect is judged."""
     results = []
     for kind in kinds:
-        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
         for seed in seeds:
-            samples = make_dataset(kind, counts[kind], seed + 100 * offset, camera)
-            rows = run_dataset(kind, samples, camera, config, seed + 100 * offset, estimators=('sqp',))
+            samples = make_dataset(kind, counts[kind], set_seed(kind, seed), camera)
+            rows = run_dataset(kind, samples, camera, config, set_seed(kind, seed), estimators=('sqp',))
             results.append(dict(summarise(rows, kind, 'sqp'), seed=seed))
     return results
 
@@ -251,8 +256,7 @@ def measure_latency(kinds, counts, seed, camera, config):
     detected then estimated right after its rendering, one OpenCV thread)."""
     results = []
     for kind in kinds:
-        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
-        frame_seed = seed + 100 * offset + LATENCY_SEED_OFFSET
+        frame_seed = set_seed(kind, seed) + LATENCY_SEED_OFFSET
         samples = make_dataset(kind, counts[kind], frame_seed, camera)
         rows = run_dataset(kind, samples, camera, config, frame_seed, estimators=('sqp',))
         frame_ms = [r['detect_ms'] + r.get('estimate_ms', 0.0) for r in rows]
@@ -286,7 +290,7 @@ def measure_photometric(kinds, count, seed, camera, config, real_dir):
     cubes = photometric.real_cubes_found(real_dir, REAL_LABELS, config)
     blocks = {'real cubes': cubes} if cubes else {}
     for kind in [k for k in kinds if k in R2_DATASETS]:
-        frame_seed = seed + 100 * (PROJECT_DATASETS + R2_DATASETS).index(kind) + PHOTOMETRIC_SEED_OFFSET
+        frame_seed = set_seed(kind, seed) + PHOTOMETRIC_SEED_OFFSET
         blocks[kind] = photometric.blocks_found(make_dataset(kind, count, frame_seed, camera), camera, config,
                                                 np.random.default_rng(frame_seed + 1))
     return photometric.false_detections(frames, config), len(frames), blocks
@@ -312,8 +316,7 @@ def measure_border_cuts(kinds, count, seed, camera, config):
     detection of their colour flagged ``touches_border`` (what the task layer re-centres on)."""
     results = []
     for kind in kinds:
-        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)
-        frame_seed = seed + 100 * offset + BORDER_CUT_SEED_OFFSET
+        frame_seed = set_seed(kind, seed) + BORDER_CUT_SEED_OFFSET
         render = render_independent.render_scene if kind in R2_DATASETS else synthetic.render_block_scene
         rng = np.random.default_rng(frame_seed + 1)
         cut = found = 0
@@ -523,9 +526,8 @@ def main(argv=None):
     counts = {'mixed': args.frames, 'green40': args.frames, 'depth161': 56}
     rows, crops = [], {} if args.worst else None
     for kind in args.datasets:
-        offset = (PROJECT_DATASETS + R2_DATASETS).index(kind)        # each set's seed is its own, whatever is run
-        samples = make_dataset(kind, counts.get(kind, args.r2_frames), args.seed + 100 * offset, camera)
-        rows += run_dataset(kind, samples, camera, config, args.seed + 100 * offset, crops)
+        samples = make_dataset(kind, counts.get(kind, args.r2_frames), set_seed(kind, args.seed), camera)
+        rows += run_dataset(kind, samples, camera, config, set_seed(kind, args.seed), crops)
     summaries = [summarise(rows, kind, estimator) for kind in args.datasets for estimator in ESTIMATORS]
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, 'frames.csv'), 'w', newline='') as f:

@@ -81,6 +81,23 @@ def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
                                                                surround_max_share=1.0))] == ['blue']
 
 
+@pytest.mark.parametrize('hue_deg', [73.0, 95.0, 116.0])
+def test_yellow_paint_shaded_or_white_balanced_is_yellow(config, hue_deg):
+    """Yellow paint lies at CIELAB hue 72-117 deg once shaded and white-balanced (the independent renderer's dice,
+    whose edges of that range were missed at +-20 deg or taken for green); orange and khaki stay out."""
+    lab = lab_image(lightness=40.0)
+    paint(lab, square_mask(), lightness=60.0, chroma=45.0, hue_deg=hue_deg)
+    detections = [(d.colour, d.shape) for d in vision.detect(to_bgr(lab), config)]
+    assert ('yellow', 'square') in detections
+
+
+@pytest.mark.parametrize('hue_deg, chroma', [(60.0, 45.0), (90.0, 20.0)])
+def test_orange_and_khaki_are_not_yellow(config, hue_deg, chroma):
+    lab = lab_image(lightness=40.0)
+    paint(lab, square_mask(), lightness=60.0, chroma=chroma, hue_deg=hue_deg)
+    assert 'yellow' not in [d.colour for d in vision.detect(to_bgr(lab), config)]
+
+
 def test_a_refused_disc_is_not_found_again_at_the_weaker_floor(config):
     """A blue disc (over the floor, refused as round) in a dimmer ring of its colour: the weaker mask's blob, disc
     and ring, would be a polygon; it is the disc's, so it is left alone."""

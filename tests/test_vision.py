@@ -187,6 +187,46 @@ def test_a_near_pentagon_in_perspective_keeps_its_corners():
     np.testing.assert_array_equal(vision.remove_cut_corners(pentagon, 0.04, 0.2, 100.0), pentagon)
 
 
+def _regular_polygon(n, radius, angle_deg=0.0, squash=1.0, centre=(160.0, 120.0)):
+    """(n, 2) corners of a regular n-gon of circumradius ``radius`` (px), turned, squashed along v (a tilted view)."""
+    angles = np.radians(angle_deg) + 2 * np.pi * np.arange(n) / n
+    return np.column_stack([radius * np.cos(angles), squash * radius * np.sin(angles)]) + centre
+
+
+def _blurred_outline(corners, size=(240, 320)):
+    """The outer contour of ``corners`` filled, blurred (sigma 1 px) and thresholded: a small block's mask."""
+    mask = np.zeros(size, np.uint8)
+    cv2.fillPoly(mask, [np.round(corners * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
+    mask = cv2.threshold(cv2.GaussianBlur(mask, (0, 0), 1.0), 127, 255, cv2.THRESH_BINARY)[1]
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea)
+
+
+@pytest.mark.parametrize('n', [3, 4, 5, 6])
+def test_the_outlines_harmonics_count_a_small_polygons_corners(n):
+    """9-12 px circumradius, any turn, squashed to 0.8 (a 37 deg tilt): the spectrum's peak is the vertex count,
+    twice the runner-up; at 7 px never another count so clearly; a disc has no harmonic that stands out so."""
+    for radius in (7.0, 9.0, 12.0):
+        for angle in (0.0, 13.0, 29.0):
+            for squash in (1.0, 0.8):
+                count, margin = vision.shape_harmonics(_blurred_outline(_regular_polygon(n, radius, angle, squash)))
+                assert count == n if margin > 2.0 else radius < 9.0, (radius, angle, squash, count, margin)
+    assert vision.shape_harmonics(_blurred_outline(_regular_polygon(64, 12.0)))[1] < 2.0
+    assert vision.shape_harmonics(np.array([[[0, 0]], [[5, 0]], [[9, 0]], [[3, 0]], [[1, 0]]]))[0] is None
+
+
+def test_a_hull_reduced_to_its_corners():
+    """A square with rounded corners (each cut into 4 hull points) reduced to 4 vertices: one near each corner."""
+    square = _regular_polygon(4, 20.0, 45.0)
+    rounded = [c + 2.0 * np.array([np.cos(t), np.sin(t)]) - 2.0 * np.sign(c - (160.0, 120.0))
+               for c in square for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]
+    hull = cv2.convexHull(np.array(rounded, np.float32))
+    reduced = vision.hull_polygon(hull, 4)
+    assert reduced.shape == (4, 2)
+    assert max(np.min(np.linalg.norm(square - v, axis=1)) for v in reduced) < 2.5
+    assert len(vision.hull_polygon(hull, 40)) == len(hull)
+
+
 def test_a_bend_in_a_side_is_dropped_and_true_corners_kept():
     """A side bent by 15 deg halfway (the outline following a sliver of side face): 3.3 % of the area, dropped at
     8 %; the corners of a squashed hexagon (a tilted view, 17 % each) and of a pentagon stay."""

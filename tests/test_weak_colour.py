@@ -98,6 +98,22 @@ def test_orange_and_khaki_are_not_yellow(config, hue_deg, chroma):
     assert 'yellow' not in [d.colour for d in vision.detect(to_bgr(lab), config)]
 
 
+@pytest.mark.parametrize('angle_deg, squash', [(0.0, 1.0), (36.0, 1.0), (0.0, 0.85)])
+def test_a_small_pentagon_is_a_pentagon(config, angle_deg, squash):
+    """A pentagon of 12 px sides (squashed: tilted 32 deg): the corner rules restore its blunt blurred
+    corners into a square; its outline's 5th harmonic says five (``harmonic_shape``)."""
+    angles = np.radians(angle_deg) + 2 * np.pi * np.arange(5) / 5
+    corners = np.column_stack([10.0 * np.cos(angles), 10.0 * squash * np.sin(angles)]) + (160.0, 120.0)
+    mask = np.zeros((240, 320), np.uint8)
+    cv2.fillPoly(mask, [np.round(corners * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
+    lab = lab_image(lightness=40.0)
+    paint(lab, mask, lightness=55.0, chroma=40.0)
+    image = to_bgr(lab)
+    assert [(d.colour, d.shape) for d in vision.detect(image, config)] == [('blue', 'pentagon')]
+    without = dataclasses.replace(config, harmonic_shape=dataclasses.replace(config.harmonic_shape, enabled=False))
+    assert [(d.colour, d.shape) for d in vision.detect(image, without)] == [('blue', 'square')]
+
+
 def test_a_refused_disc_is_not_found_again_at_the_weaker_floor(config):
     """A blue disc (over the floor, refused as round) in a dimmer ring of its colour: the weaker mask's blob, disc
     and ring, would be a polygon; it is the disc's, so it is left alone."""

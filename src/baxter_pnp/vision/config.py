@@ -84,6 +84,20 @@ class SideFaceConfig(Parameters):
         self.require(0.0 < self.max_strip_brightness < 1.0, 'max_strip_brightness', 'must be in (0, 1)')
 
 
+@dataclass(frozen=True)
+class HarmonicShapeConfig(Parameters):
+    """A small polygon's shape from its outline's harmonics (see ``polygon.shape_harmonics``): on polygons up to
+    ``max_size_px`` (square root of the hull's area), the harmonics' vertex count replaces the corner rules' where
+    its amplitude is at least ``min_margin`` times the runner-up's."""
+    enabled: bool = True
+    max_size_px: float = 40.0
+    min_margin: float = 2.0
+
+    def validate(self):
+        self.require(self.max_size_px >= 0.0, 'max_size_px', 'must be >= 0')
+        self.require(self.min_margin > 1.0, 'min_margin', 'must be > 1')
+
+
 PIPELINES = ('chroma', 'thesis')
 
 
@@ -173,6 +187,7 @@ class VisionConfig(Parameters):
     min_aspect: float = 0.2
     top_face: TopFaceConfig = field(default_factory=TopFaceConfig)
     side_face_cut: SideFaceConfig = field(default_factory=SideFaceConfig)
+    harmonic_shape: HarmonicShapeConfig = field(default_factory=HarmonicShapeConfig)
     subpixel: SubpixelConfig = field(default_factory=SubpixelConfig)
     roi: RoiConfig = field(default_factory=RoiConfig)
 

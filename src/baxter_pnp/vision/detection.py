@@ -13,9 +13,9 @@ from baxter_pnp.models import SHAPES
 from baxter_pnp.vision import chroma
 from baxter_pnp.vision.colour import (colour_mask, dynamic_threshold, find_blobs, laplacian_sharpen, open_close,
                                       oversaturated_hsv)
-from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, looks_round,
-                                       merge_close_vertices, order_vertices, remove_cut_corners,
-                                           remove_flat_vertices)
+from baxter_pnp.vision.polygon import (approximate_polygon, classify_shape, fit_polygon_sides, hull_polygon,
+                                       looks_round, merge_close_vertices, order_vertices, remove_cut_corners,
+                                       remove_flat_vertices, shape_harmonics)
 from baxter_pnp.vision.sideface import cut_side_faces
 from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
@@ -388,6 +388,7 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
         return None
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction,
                                 config.cut_corner_clear_max_size_px)
+    coarse = _harmonic_vertex_count(outline, hull, coarse, offset, image_bgr.shape, config.harmonic_shape)
     shape = classify_shape(len(coarse))
     if shape is None or _aspect(coarse) < config.min_aspect:
         return None
@@ -414,6 +415,19 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
                      centroid_px=np.array([moments['m10'], moments['m01']]) / moments['m00'],
                      area_px=float(moments['m00']), quality=float(np.clip(quality, 0.0, 1.0)),
                      touches_border=touches, contour=(outline + offset).astype(np.int32))
+
+
+def _harmonic_vertex_count(outline, hull, coarse, offset, image_shape, config):
+    """``coarse`` (k, 2), or the ``hull`` reduced to the vertex count of the outline's harmonics
+    (``polygon.shape_harmonics``) where that differs with a margin of ``config.min_margin`` (``HarmonicShapeConfig``)
+    on a polygon up to ``max_size_px``, not cut by the image border (the border is no part of its outline)."""
+    if (not config.enabled or cv2.contourArea(hull) > config.max_size_px ** 2
+            or _off_the_border(outline, offset, image_shape) is not outline):
+        return coarse
+    count, margin = shape_harmonics(outline)
+    if count is None or count == len(coarse) or margin < config.min_margin:
+        return coarse
+    return hull_polygon(hull, count)
 
 
 def _aspect(polygon):

@@ -14,6 +14,7 @@ SHAPE_OF_VERTEX_COUNT = {n: shape for shape, n in SHAPES.items()}
 SHORT_EDGE_RATIO = 0.4       # remove_cut_corners: an edge this much shorter than both neighbours is no polygon side
 ROUND_RESIDUAL_RATIO = 0.8    # looks_round: an ellipse must fit the outline this much better than the polygon
 _MAX_SIDE_FIT_POINTS = 240     # fit_polygon_sides: a longer contour is subsampled to about this many points
+_HARMONIC_ANGLES = np.linspace(-np.pi, np.pi, 360, endpoint=False)   # shape_harmonics: the profile's angles
 
 
 def approximate_polygon(contour, epsilon_fraction):
@@ -176,6 +177,56 @@ def intersect_lines(points_a, directions_a, points_b, directions_b):
     t = (gap[:, 0] * directions_b[:, 1] - gap[:, 1] * directions_b[:, 0]) / np.where(crossing, cross, 1.0)
     return np.where(crossing[:, None], points_a + t[:, None] * directions_a, np.nan)
 
+
+
+def shape_harmonics(contour):
+    """``(n, margin)``: the vertex count n (3-6) whose harmonic dominates the radial profile of the outline
+    ``contour`` (M, 1, 2), affine-normalised, and its weighted amplitude over the runner-up's; ``(None, 0.0)`` for a
+    degenerate outline.
+
+    A regular n-gon's distance from its centroid, as a function of the angle, repeats n times a turn, so its
+    spectrum peaks at harmonic n (a triangle's 6th is a fraction of its 3rd). Seen tilted, in a nearly affine
+    view, a regular polygon keeps second moments proportional to its image's: whitening the outline by its own
+    (a circle's in the end) turns it back into a regular polygon, rotated, whose spectrum's magnitudes the
+    rotation leaves alone. Blur and the pixel grid damp harmonic k more the higher k is; amplitude times k
+    undoes that on blocks of 15-25 px (a triangle's 6th harmonic, its second peak, is not counted against it).
+    Where Douglas-Peucker and the cut-corner rules count a small blurred
+    polygon's corners, the spectrum sees the whole outline: the rules' vertex count is the runner-up's when a
+    pentagon's blunt corners look like a square's or a small triangle's tip is cut off.
+    """
+    points = contour.reshape(-1, 2).astype(float)
+    moments = cv2.moments(points.astype(np.float32))
+    if len(points) < 5 or moments['m00'] <= 0:
+        return None, 0.0
+    centroid = np.array([moments['m10'], moments['m01']]) / moments['m00']
+    covariance = np.array([[moments['mu20'], moments['mu11']], [moments['mu11'], moments['mu02']]]) / moments['m00']
+    eigenvalues, axes = np.linalg.eigh(covariance)
+    if eigenvalues[0] <= 1e-9 * eigenvalues[1]:
+        return None, 0.0
+    whitened = (points - centroid) @ (axes / np.sqrt(eigenvalues)) @ axes.T
+    angles = np.arctan2(whitened[:, 1], whitened[:, 0])
+    order = np.argsort(angles)
+    angles, radii = angles[order], np.hypot(whitened[order, 0], whitened[order, 1])
+    angles = np.concatenate([angles[-1:] - 2.0 * np.pi, angles, angles[:1] + 2.0 * np.pi])    # the turn closed
+    radius = np.interp(_HARMONIC_ANGLES, angles, np.concatenate([radii[-1:], radii, radii[:1]]))
+    spectrum = np.abs(np.fft.rfft(radius))[3:7] * np.arange(3, 7)          # harmonics 3, 4, 5, 6
+    count = int(np.argmax(spectrum)) + 3
+    rivals = spectrum[1:3] if count == 3 else np.delete(spectrum, count - 3)   # a triangle's own 6th is no rival
+    runner_up = float(rivals.max())
+    return count, float(spectrum[count - 3]) / runner_up if runner_up > 0 else math.inf
+
+
+def hull_polygon(hull, count):
+    """(``count``, 2) vertices of the convex ``hull`` (M, 1, 2) reduced to ``count``: the vertex whose triangle with
+    its neighbours is the smallest is dropped, one at a time (a rounded corner's points go before any corner);
+    the hull itself (M, 2) when it has ``count`` vertices or fewer."""
+    vertices = hull.reshape(-1, 2).astype(float)
+    while len(vertices) > count:
+        before, after = np.roll(vertices, 1, axis=0), np.roll(vertices, -1, axis=0)
+        areas = np.abs((vertices[:, 0] - before[:, 0]) * (after[:, 1] - before[:, 1])
+                       - (vertices[:, 1] - before[:, 1]) * (after[:, 0] - before[:, 0]))
+        vertices = np.delete(vertices, int(np.argmin(areas)), axis=0)
+    return vertices
 
 
 def looks_round(contour, vertices):

@@ -88,14 +88,17 @@ class SideFaceConfig(Parameters):
 class HarmonicShapeConfig(Parameters):
     """A small polygon's shape from its outline's harmonics (see ``polygon.shape_harmonics``): on polygons up to
     ``max_size_px`` (square root of the hull's area), the harmonics' vertex count replaces the corner rules' where
-    its amplitude is at least ``min_margin`` times the runner-up's."""
+    its amplitude is at least ``min_margin`` times the runner-up's, and an outline the disc test calls round is a
+    polygon when that amplitude is also ``min_strength`` of a sharp regular polygon's."""
     enabled: bool = True
     max_size_px: float = 40.0
     min_margin: float = 2.0
+    min_strength: float = 0.5
 
     def validate(self):
         self.require(self.max_size_px >= 0.0, 'max_size_px', 'must be >= 0')
         self.require(self.min_margin > 1.0, 'min_margin', 'must be > 1')
+        self.require(self.min_strength > 0.0, 'min_strength', 'must be > 0')
 
 
 PIPELINES = ('chroma', 'thesis')

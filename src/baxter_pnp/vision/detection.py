@@ -382,13 +382,16 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     coarse = merge_close_vertices(coarse, config.merge_distance_fraction * cv2.arcLength(hull, True))
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction)
     coarse = remove_flat_vertices(coarse, config.flat_vertex_area_fraction)
-    if config.pipeline == 'chroma' and looks_round(_off_the_border(outline, offset, image_bgr.shape), coarse):
+    harmonics = _harmonics(outline, hull, offset, image_bgr.shape, config.harmonic_shape)
+    if (config.pipeline == 'chroma' and looks_round(_off_the_border(outline, offset, image_bgr.shape), coarse)
+            and (harmonics is None or harmonics.strength < config.harmonic_shape.min_strength)):
         if discs is not None:
             discs.append(outline)
         return None
     coarse = remove_cut_corners(coarse, config.cut_corner_area_fraction, config.cut_corner_clear_area_fraction,
                                 config.cut_corner_clear_max_size_px)
-    coarse = _harmonic_vertex_count(outline, hull, coarse, offset, image_bgr.shape, config.harmonic_shape)
+    if harmonics is not None and harmonics.count != len(coarse):
+        coarse = hull_polygon(hull, harmonics.count)
     shape = classify_shape(len(coarse))
     if shape is None or _aspect(coarse) < config.min_aspect:
         return None
@@ -417,17 +420,16 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
                      touches_border=touches, contour=(outline + offset).astype(np.int32))
 
 
-def _harmonic_vertex_count(outline, hull, coarse, offset, image_shape, config):
-    """``coarse`` (k, 2), or the ``hull`` reduced to the vertex count of the outline's harmonics
-    (``polygon.shape_harmonics``) where that differs with a margin of ``config.min_margin`` (``HarmonicShapeConfig``)
-    on a polygon up to ``max_size_px``, not cut by the image border (the border is no part of its outline)."""
+def _harmonics(outline, hull, offset, image_shape, config):
+    """The outline's ``polygon.Harmonics`` when they are to be believed (``HarmonicShapeConfig``): harmonic_shape on,
+    the ``hull`` at most ``max_size_px``, the outline not cut by the image border (the border is no part of it), a
+    ``min_margin`` over the runner-up; else None. They then count the polygon's vertices and, at ``min_strength``,
+    overrule the disc test."""
     if (not config.enabled or cv2.contourArea(hull) > config.max_size_px ** 2
             or _off_the_border(outline, offset, image_shape) is not outline):
-        return coarse
-    count, margin = shape_harmonics(outline)
-    if count is None or count == len(coarse) or margin < config.min_margin:
-        return coarse
-    return hull_polygon(hull, count)
+        return None
+    harmonics = shape_harmonics(outline)
+    return harmonics if harmonics.count is not None and harmonics.margin >= config.min_margin else None
 
 
 def _aspect(polygon):

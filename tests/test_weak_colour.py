@@ -26,10 +26,10 @@ def paint(lab, mask, lightness, chroma, hue_deg=BLUE_HUE_DEG):
                      128.0 + chroma * np.sin(np.radians(hue_deg)))
 
 
-def to_bgr(lab, seed=0):
-    """The camera's view of ``lab``: BGR, blurred (sigma 0.8 px), with a little noise."""
+def to_bgr(lab, seed=0, blur_px=0.8):
+    """The camera's view of ``lab``: BGR, blurred (sigma ``blur_px``), with a little noise."""
     bgr = cv2.cvtColor(np.clip(np.round(lab), 0, 255).astype(np.uint8), cv2.COLOR_LAB2BGR).astype(np.float32)
-    bgr = cv2.GaussianBlur(bgr, (0, 0), 0.8) + np.random.default_rng(seed).normal(0.0, 1.0, bgr.shape)
+    bgr = cv2.GaussianBlur(bgr, (0, 0), blur_px) + np.random.default_rng(seed).normal(0.0, 1.0, bgr.shape)
     return np.clip(np.round(bgr), 0, 255).astype(np.uint8)
 
 
@@ -98,20 +98,41 @@ def test_orange_and_khaki_are_not_yellow(config, hue_deg, chroma):
     assert 'yellow' not in [d.colour for d in vision.detect(to_bgr(lab), config)]
 
 
-@pytest.mark.parametrize('angle_deg, squash', [(0.0, 1.0), (36.0, 1.0), (0.0, 0.85)])
-def test_a_small_pentagon_is_a_pentagon(config, angle_deg, squash):
-    """A pentagon of 12 px sides (squashed: tilted 32 deg): the corner rules restore its blunt blurred
-    corners into a square; its outline's 5th harmonic says five (``harmonic_shape``)."""
-    angles = np.radians(angle_deg) + 2 * np.pi * np.arange(5) / 5
-    corners = np.column_stack([10.0 * np.cos(angles), 10.0 * squash * np.sin(angles)]) + (160.0, 120.0)
+def small_polygon(n, radius_px, angle_deg=0.0, squash=1.0, blur_px=0.8):
+    """A blue regular n-gon (circumradius ``radius_px``, squashed along v: tilted) on a grey table, as seen."""
+    angles = np.radians(angle_deg) + 2 * np.pi * np.arange(n) / n
+    corners = np.column_stack([radius_px * np.cos(angles), radius_px * squash * np.sin(angles)]) + (160.0, 120.0)
     mask = np.zeros((240, 320), np.uint8)
     cv2.fillPoly(mask, [np.round(corners * 16).astype(np.int32)], 255, cv2.LINE_8, shift=4)
     lab = lab_image(lightness=40.0)
     paint(lab, mask, lightness=55.0, chroma=40.0)
-    image = to_bgr(lab)
+    return to_bgr(lab, blur_px=blur_px)
+
+
+def with_harmonics(config, **changes):
+    return dataclasses.replace(config, harmonic_shape=dataclasses.replace(config.harmonic_shape, **changes))
+
+
+@pytest.mark.parametrize('angle_deg, squash', [(0.0, 1.0), (36.0, 1.0), (0.0, 0.85)])
+def test_a_small_pentagon_is_a_pentagon(config, angle_deg, squash):
+    """A pentagon of 12 px sides (squashed: tilted 32 deg): the corner rules restore its blunt blurred
+    corners into a square; its outline's 5th harmonic says five (``harmonic_shape``)."""
+    image = small_polygon(5, 10.0, angle_deg, squash)
     assert [(d.colour, d.shape) for d in vision.detect(image, config)] == [('blue', 'pentagon')]
-    without = dataclasses.replace(config, harmonic_shape=dataclasses.replace(config.harmonic_shape, enabled=False))
-    assert [(d.colour, d.shape) for d in vision.detect(image, without)] == [('blue', 'square')]
+    assert [(d.colour, d.shape) for d in vision.detect(image, with_harmonics(config, enabled=False))] == \
+        [('blue', 'square')]
+
+
+@pytest.mark.parametrize('n, radius_px, angle_deg, blur_px', [(6, 11.0, 20.0, 1.2), (6, 10.0, 0.0, 1.6),
+                                                              (5, 11.0, 0.0, 1.6)])
+def test_a_small_blurred_polygon_the_disc_test_calls_round_is_found(config, n, radius_px, angle_deg, blur_px):
+    """An ellipse fits a blurred 11-13 px hexagon or pentagon as well as the polygon does; its harmonic's strength
+    (``harmonic_shape.min_strength``) says it has corners. A disc of the same size stays refused."""
+    image = small_polygon(n, radius_px, angle_deg, blur_px=blur_px)
+    shape = {5: 'pentagon', 6: 'hexagon'}[n]
+    assert [(d.colour, d.shape) for d in vision.detect(image, config)] == [('blue', shape)]
+    assert vision.detect(image, with_harmonics(config, min_strength=1e9)) == []
+    assert vision.detect(small_polygon(64, radius_px, blur_px=blur_px), config) == []
 
 
 def test_a_refused_disc_is_not_found_again_at_the_weaker_floor(config):

@@ -188,7 +188,8 @@ def test_bad_yaml_text_and_bad_numbers_in_arguments(tmp_path, capsys, thesis_vie
         status, reports, err = run_cli(capsys, image_path, '--camera-info', path)
         assert (status, reports) == (2, []) and message in err and str(path) in err, err
     for bad in (['--side', 'inf'], ['--side', 'nan'], ['--height', '-0.02'], ['--side', '0'], ['--every', '0'],
-                ['--max-frames', '0']):
+                ['--max-frames', '0'], ['--edge-radius', '-0.001'], ['--edge-radius', 'nan'],
+                ['--edge-radius', '0.02']):
         with pytest.raises(SystemExit) as exit_info:
             detect_cli.main([str(image_path), '--side', str(SIDE)] + bad)
         assert exit_info.value.code == 2, bad

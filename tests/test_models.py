@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp.models import SHAPES, Plane, PolygonModel, model_for
+from baxter_pnp.models import EDGE_INSET_FRACTION, SHAPES, Plane, PolygonModel, model_for, seen_model
 from baxter_pnp.transforms import invert, make_transform
 
 
@@ -73,3 +73,21 @@ def test_plane_transformed_keeps_points_on_the_plane():
     back = plane_camera.transformed(invert(T_camera_base))
     np.testing.assert_allclose(back.normal, plane_base.normal, atol=1e-12)
     assert back.offset == pytest.approx(plane_base.offset)
+
+
+@pytest.mark.parametrize('shape', sorted(SHAPES))
+def test_a_rounded_top_rim_is_seen_as_a_top_face_inset_by_a_fraction_of_its_radius(shape):
+    """Each edge EDGE_INSET_FRACTION x r inside the sharp one: the side shrinks by 2 f r tan(pi / n), the centre and
+    height stay; a sharp block is its own model."""
+    sharp, seen = model_for(shape, 0.04, 0.02), seen_model(shape, 0.04, 0.02, 0.002)
+    apothem = sharp.circumradius * math.cos(math.pi / sharp.n)
+    assert seen.circumradius * math.cos(math.pi / seen.n) == pytest.approx(apothem - EDGE_INSET_FRACTION * 0.002)
+    assert (seen.shape, seen.height) == (shape, 0.02) and seen_model(shape, 0.04, 0.02) is sharp
+    np.testing.assert_allclose(seen.vertices.mean(axis=0), 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize('edge_radius', [-0.001, float('nan'), float('inf'), 0.011, 0.02])
+def test_a_bad_edge_radius_raises(edge_radius):
+    """Negative, not finite, or as large as the triangle's apothem (0.0115 m at 0.04 m) or the block's height."""
+    with pytest.raises(ValueError, match='edge_radius'):
+        seen_model('triangle', 0.04, 0.011, edge_radius)

@@ -58,6 +58,8 @@ def parse_args(argv):
     parser.add_argument('--max-frames', type=int, metavar='N', help='bags: at most N frames per bag')
     parser.add_argument('--side', type=float, required=True, help='side length of the block (m), e.g. 0.04')
     parser.add_argument('--height', type=float, default=0.02, help='height of the block (m), default 0.02')
+    parser.add_argument('--edge-radius', type=float, default=0.0,
+                        help='radius the blocks\' top edges are rounded over (m), default 0: sharp')
     parser.add_argument('--shape', choices=sorted(models.SHAPES), help='only this shape')
     parser.add_argument('--colour', '--color', dest='colour', help='only this colour (a name in the vision config)')
     parser.add_argument('--method', choices=['sqp', 'ippe', 'sqpnp'], default='sqp', help='pose estimator')
@@ -68,6 +70,11 @@ def parse_args(argv):
     args = parser.parse_args(argv)
     if not (math.isfinite(args.side) and args.side > 0 and math.isfinite(args.height) and args.height > 0):
         parser.error('--side and --height must be positive numbers (metres)')
+    try:
+        for shape in [args.shape] if args.shape else sorted(models.SHAPES):
+            models.seen_model(shape, args.side, args.height, args.edge_radius)
+    except ValueError as exc:
+        parser.error('--edge-radius: %s' % exc)
     if args.every < 1 or (args.max_frames is not None and args.max_frames < 1):
         parser.error('--every and --max-frames must be at least 1')
     return args
@@ -174,7 +181,7 @@ class _Detector:
     def _observe(self, image, camera):
         args = self.args
         return perception.observe_blocks(image, camera, self.config, args.side, args.height, shape=args.shape,
-                                         colour=args.colour, method=args.method)
+                                         colour=args.colour, method=args.method, edge_radius=args.edge_radius)
 
     def _report(self, head, label, observations, image, camera, annotated_name):
         report = dict(head, detections=[o.to_json() for o in observations])

@@ -65,6 +65,29 @@ def model_for(shape, side, height=0.02):
     return PolygonModel(shape, float(side), float(height))
 
 
+# seen_model: the top face's edges are seen this fraction of the radius of a rounded-over top rim inside the sharp
+# edges (docs/perception.md, "Rounded top edges"): a Lambertian rim under a light 45-90 deg above the table, averaged
+# over the light's azimuth, as the sub-pixel stage's thin-strip model measures it (0.18-0.22).
+EDGE_INSET_FRACTION = 0.2
+
+
+def seen_model(shape, side, height=0.02, edge_radius=0.0):
+    """The model the image shows of a ``shape`` block of ``side`` and ``height`` (m) whose top rim is rounded over
+    with radius ``edge_radius`` (m; 0: sharp, the block's own model): its top face inset by ``EDGE_INSET_FRACTION``
+    of the radius, the same centre and height. What the pose estimator fits to the detected vertices: a die's
+    rounded edges make its top face look smaller, and a model of the sharp cube puts it farther away than it is."""
+    if not (math.isfinite(edge_radius) and edge_radius >= 0.0):
+        raise ValueError(f'edge_radius must be a non-negative number of metres, got {edge_radius!r}')
+    sharp = model_for(shape, side, height)
+    if edge_radius == 0.0:
+        return sharp
+    apothem = sharp.circumradius * math.cos(math.pi / sharp.n)
+    if edge_radius >= (min(apothem, height) if height > 0 else apothem):
+        raise ValueError(f'edge_radius must be less than the block\'s apothem and height, got {edge_radius} m for a '
+                         f'{side} m {shape} {height} m tall')
+    return model_for(shape, side - 2.0 * EDGE_INSET_FRACTION * edge_radius * math.tan(math.pi / sharp.n), height)
+
+
 @dataclass(frozen=True)
 class Plane:
     """The points X with ``normal . X = offset`` (``normal`` unit, metres); the normal points up (camera side)."""

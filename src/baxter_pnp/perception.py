@@ -43,11 +43,12 @@ class BlockObservation:
 
 
 def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=None, colour=None,
-                   method='sqp', table_plane=None):
+                   method='sqp', table_plane=None, edge_radius=0.0):
     """Detect blocks in ``image_bgr`` and estimate the pose of each.
 
-    ``side`` and ``height`` (m) describe the block model; ``shape``/``colour`` restrict the detections
-    (None = any). ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
+    ``side`` and ``height`` (m) describe the block model, ``edge_radius`` (m) how far its top rim is rounded over
+    (``models.seen_model``: 0 for sharp blocks); ``shape``/``colour`` restrict the detections (None = any).
+    ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
     Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed). Where a top face
     split off its blob gets no pose, is not ``shape``, or is posed with a residual above
     ``SPLIT_FACE_MAX_RESIDUAL_PX``, the whole blob is tried (``vision.blob_detection``; of two poses the one with the
@@ -64,17 +65,17 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     for detection in detections:
         if shape is not None and detection.shape != shape:
             observation = _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera,
-                                                  method, table_plane)
+                                                  method, table_plane, edge_radius)
             if observation is not None and observation.pose is not None:
                 observations.append(observation)
             continue
-        model = models.model_for(detection.shape, side, height)
+        model = models.seen_model(detection.shape, side, height, edge_radius)
         try:
             estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method,
                                           table_plane=table_plane)
         except pose.PoseEstimationError as exc:
             observation = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height,
-                                                  camera, method, table_plane)
+                                                  camera, method, table_plane, edge_radius)
             if observation is None or observation.pose is None:
                 error = str(exc) + ('' if observation is None else f'; the whole blob: {observation.error}')
                 observation = BlockObservation(detection, None, error)
@@ -83,14 +84,15 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
         observation = BlockObservation(detection, estimate)
         if estimate.residual_px > SPLIT_FACE_MAX_RESIDUAL_PX:
             whole = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height, camera,
-                                            method, table_plane)
+                                            method, table_plane, edge_radius)
             if whole is not None and whole.pose is not None and whole.pose.residual_px < estimate.residual_px:
                 observation = whole
         observations.append(observation)
     return observations
 
 
-def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane):
+def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane,
+                            edge_radius):
     """The observation of ``detection``'s whole blob (``vision.blob_detection``) as a ``shape`` block, when the top
     face split off it got no pose, a poor fit or has another shape (a shadow's edge across the face taken for a side
     face's): with its pose, or with the pose's error; None when there was no split or the blob is no ``shape``."""
@@ -98,7 +100,7 @@ def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, he
     if whole is None:
         return None
     try:
-        model = models.model_for(shape, side, height)
+        model = models.seen_model(shape, side, height, edge_radius)
         return BlockObservation(whole, pose.estimate_pose(whole.vertices_px, camera, model, method=method,
                                                           table_plane=table_plane))
     except pose.PoseEstimationError as exc:

@@ -32,6 +32,7 @@ class PickConfig(Parameters):
     shape: str = 'square'                   # target shape (triangle, square, pentagon, hexagon)
     side_length: float = 0.04               # block side (m)
     block_height: float = 0.02              # block height (m)
+    edge_radius: float = 0.0                # radius the blocks' top edges are rounded over (m; dice, worn cubes)
     colour: str = 'green'                   # a colour name of config/vision.yaml
     mode: str = 'pbvs'                      # pbvs (thesis look-and-move) | ibvs | hybrid (2.5D)
     step_fraction: float = 0.35             # PBVS: fraction of the remaining displacement per step (thesis 0.35, 0.12)
@@ -81,6 +82,8 @@ class PickConfig(Parameters):
         require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
         require(0.0 <= self.stall_progress < 1.0, 'stall_progress', 'must be in [0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
+        require(0.0 <= self.edge_radius < min(self.side_length / 2.0, self.block_height), 'edge_radius',
+                'must be in [0, min(side_length / 2, block_height)) m')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),
@@ -91,7 +94,14 @@ class PickConfig(Parameters):
 
     @property
     def model(self):
+        """The block's model (``models.PolygonModel``): its sharp geometry, for grasps and places."""
         return models.model_for(self.shape, self.side_length, self.block_height)
+
+    @property
+    def seen_model(self):
+        """The block's top face as the camera sees it (``models.seen_model``: inset for a rounded top rim), for the
+        image features the servo laws and the predictions compare with detections."""
+        return models.seen_model(self.shape, self.side_length, self.block_height, self.edge_radius)
 
 
 @dataclass

@@ -45,7 +45,7 @@ class PickApplication(Picker):
         self.outputs = Outputs(output_dir, result_json, session_config.cycles, config.mode)
         eye = Eye(session, vision_config,
                   BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
-                             session.table),
+                             session.table, config.edge_radius),
                   views_dir=self.outputs.views_dir if session_config.save_views else None)
         survey = Survey(session, motion, eye, session_config.table_area) if config.survey else None
         super().__init__(session, motion, eye, config, survey)

@@ -201,7 +201,7 @@ def connect_rig():
     session = RobotSession(session_config, log_name='depth')
     session.connect()
     query = BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
-                       session.table)
+                       session.table, config.edge_radius)
     return DepthRig(session, Motion(session), Eye(session, vision.VisionConfig.from_yaml(), query),
                     target.TargetRules.of(config, session.table))
 

@@ -20,8 +20,10 @@ and shadows, a dim textured table, vignetting, pips, letters, grain and glare, 8
 Errors are against the renderer's ground truth (the top face's sharp corners, where its edge lines meet):
 vertex error (px, mean distance of each detected vertex to the nearest true one), position of the top-face
 centre (mm), depth (z, mm; signed mean = bias, positive = too far), orientation (deg, modulo the shape's
-symmetry). Times are per frame on one core (OpenCV and BLAS limited to one thread): ``detect`` for the vision
-pipeline, then each estimator's own time.
+symmetry). Estimators (``ESTIMATORS``): ``sqp``, ``ippe``, ``sqpnp`` on the block's model; ``sqp+plane`` with the
+true table's normal as prior (as the robot has it); ``sqp+edge`` with the model told the block's rounded top rim
+(``models.seen_model``, the truth's bevel: a user gives a die's edge radius as its side). Times are per frame on one
+core (OpenCV and BLAS limited to one thread): ``detect`` for the vision pipeline, then each estimator's own time.
 """
 import argparse
 import csv
@@ -38,7 +40,7 @@ from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
-ESTIMATORS = ('sqp', 'sqp+plane', 'ippe', 'sqpnp')
+ESTIMATORS = ('sqp', 'sqp+plane', 'sqp+edge', 'ippe', 'sqpnp')     # the module docstring
 BLOCK_HEIGHT = 0.02
 PROJECT_DATASETS = ('mixed', 'green40', 'depth161')
 R2_DATASETS = ('green40_r2', 'mixed_r2', 'dice_r2', 'small_r2')
@@ -194,12 +196,13 @@ def run_dataset(kind, samples, camera, config, seed, crops=None, estimators=ESTI
             base['vertex_err_px'] = _vertex_error_px(target.vertices_px, truths[0]['vertices_px'])
         if crops is not None:
             crops[(kind, index)] = _crop(image, truths[0]['vertices_px'], target, detections)
-        model = models.model_for(spec.shape, spec.side, spec.height)
         for estimator in estimators:
             row = dict(base, estimator=estimator)
             if target is not None:
-                method = estimator.split('+')[0]
-                plane = true_table_plane(T_true, spec.height) if estimator.endswith('+plane') else None
+                method, *options = estimator.split('+')
+                plane = true_table_plane(T_true, spec.height) if 'plane' in options else None
+                model = models.seen_model(spec.shape, spec.side, spec.height,
+                                          getattr(spec, 'bevel', 0.0) if 'edge' in options else 0.0)
                 start = time.perf_counter()
                 try:
                     estimate = pose.estimate_pose(target.vertices_px, camera, model, method=method,

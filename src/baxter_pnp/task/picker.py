@@ -262,7 +262,7 @@ class Picker:
             T_camera_goal_block = pick.camera_goal(T_goal, look.T_base_block, T_gripper_camera)
             vertices_xy = camera.undistort_points(look.target.detection.vertices_px)
             twist, error = pick.servo_twist(c.mode, look.target.pose.T_camera_object, T_camera_goal_block,
-                                            vertices_xy, c.model, gain)
+                                            vertices_xy, c.seen_model, gain)
             translation, rotation = self.record(iteration, look, T_hover, error * camera.fx)
             seen = not look.predicted
             if seen and not at_view and error * camera.fx <= c.view_tolerance_px:
@@ -358,7 +358,7 @@ class Picker:
             return look
         if look.target is None and predicted < self.config.max_predicted_looks:
             carried = target.predicted_target(previous.target, self.T_base_last_block, look.T_base_camera,
-                                              look.frame.camera, self.config.model)
+                                              look.frame.camera, self.config.seen_model)
             return look._replace(target=carried, T_base_block=self.T_base_last_block, predicted=True)
         self.session.limb.exit_control_mode()
         return self.look_for_block(after_stamp=rospy.get_time())

@@ -25,7 +25,7 @@ def test_config_validation_names_the_key():
     for values, key in (({'mode': 'teleport'}, 'mode'), ({'step_fraction': 0.0}, 'step_fraction'),
                         ({'side_length': -1}, 'side_length'), ({'grasp_depth': 0.05}, 'grasp_depth'),
                         ({'place_xy': [0.5]}, 'place_xy'), ({'gain': [0.1, 1.0, 3]}, 'gain'),
-                        ({'edge_radius': -0.001}, 'edge_radius'), ({'edge_radius': 0.02}, 'edge_radius'),
+                        ({'edge_radius': -0.001}, 'edge_radius'), ({'edge_radius': 0.012}, 'edge_radius'),
                         ({'colur': 'green'}, 'colur')):
         with pytest.raises(ValueError, match=key):
             pick.PickConfig.from_dict(values)

@@ -82,8 +82,9 @@ class PickConfig(Parameters):
         require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
         require(0.0 <= self.stall_progress < 1.0, 'stall_progress', 'must be in [0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
-        require(0.0 <= self.edge_radius < min(self.side_length / 2.0, self.block_height), 'edge_radius',
-                'must be in [0, min(side_length / 2, block_height)) m')
+        inradius = self.side_length / (2.0 * math.sqrt(3.0))        # a triangle's: the looks may pose any shape
+        require(0.0 <= self.edge_radius < min(inradius, self.block_height), 'edge_radius',
+                'must be in [0, min(side_length / (2 sqrt 3), block_height)) m')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),

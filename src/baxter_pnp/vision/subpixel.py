@@ -86,7 +86,9 @@ def _sample_edge_profiles(image_bgr, polygon, offsets, config):
     samples = cv2.remap(image_bgr, coords.reshape(n * m, len(offsets), 2), None, cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
     h, w = image_bgr.shape[:2]
-    seen = ((coords.min(axis=2) >= 0.0) & (coords.max(axis=2) <= (w - 1, h - 1))).all(axis=2)
+    ends = coords[:, :, [0, -1]]                 # a profile is straight: its two ends are its extremes
+    u, v = ends[..., 0], ends[..., 1]
+    seen = ((u >= 0.0) & (u <= w - 1) & (v >= 0.0) & (v <= h - 1)).all(axis=2)
     return samples.reshape(n, m, len(offsets), 3).astype(np.float32), points, directions, normals, usable, seen
 
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pose, synthetic, vision
-from baxter_pnp.bench import photometric, render_independent
+from baxter_pnp.bench import as_picked, photometric, render_independent
 from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
 
@@ -279,6 +279,21 @@ def format_latency(results):
     return '\n'.join(lines)
 
 
+def measure_as_picked(kinds, counts, seed, camera, config):
+    """Per independent-renderer dataset of ``kinds`` (``counts``: frames of each; the accuracy tables' frames, same
+    seeds): ``as_picked.summarise_looks`` of each frame's look as a pick makes it (``as_picked.look_at``, with the
+    true table plane)."""
+    results = []
+    for kind in [k for k in kinds if k in R2_DATASETS]:
+        rng = np.random.default_rng(set_seed(kind, seed) + 1)
+        looks = []
+        for spec, T, colour in make_dataset(kind, counts[kind], set_seed(kind, seed), camera):
+            image, _ = render_independent.render_scene(camera, [(spec, T)], rng)
+            looks.append(as_picked.look_at(image, spec, colour, T, true_table_plane(T, spec.height), camera, config))
+        results.append(as_picked.summarise_looks(kind, looks))
+    return results
+
+
 REAL_DEFAULT = os.environ.get('BAXTER_PNP_REAL_DATA', os.path.join(PACKAGE_ROOT, '..', 'shared', 'real'))
 REAL_LABELS = os.path.join(PACKAGE_ROOT, 'tests', 'data', 'real_labels.yaml')   # the real cubes' labels
 PHOTOMETRIC_SEED_OFFSET = 90                  # measure_photometric's frames' seeds: their own
@@ -519,6 +534,9 @@ def main(argv=None):
                         help='frames of each _r2 dataset, and the real frames with no block (--real), measured '
                              'under exposure, cast, gamma, vignetting, glow and saturation changes (default 40; 0: '
                              'no photometric tables)')
+    parser.add_argument('--as-picked-frames', type=int, default=150, metavar='N',
+                        help='frames of each _r2 set looked at as a pick looks (observe_blocks with the table plane '
+                             'and the pick\'s belief rules; bench/as_picked.py; default 150, 0: no table)')
     parser.add_argument('--real', default=REAL_DEFAULT, metavar='DIR',
                         help='the real images (default ../shared/real beside the repository, or '
                              '$BAXTER_PNP_REAL_DATA); their blockless frames are counted when present')
@@ -573,10 +591,17 @@ def main(argv=None):
         print('\nphotometric changes (real frames with no block%s; real cubes; independent renderer\'s blocks)\n\n%s'
               % ('' if frame_count else ': none at %s' % args.real,
                  photometric.format_tables(false_found, frame_count, blocks)))
+    if args.as_picked_frames > 0 and any(kind in R2_DATASETS for kind in args.datasets):
+        picked = measure_as_picked(args.datasets, {kind: args.as_picked_frames for kind in R2_DATASETS}, args.seed,
+                                   camera, config)
+        with open(os.path.join(args.out, 'as_picked.json'), 'w') as f:
+            json.dump(picked, f, indent=1)
+        print('\nas a pick looks (observe_blocks with the true table plane and edge radius, the pick\'s belief rules)'
+              '\n\n%s' % as_picked.format_as_picked(picked))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)
         print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
     print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json, border_cuts.json, '
-          'photometric.json, seed_spread.json)' % (args.out, args.out))
+          'photometric.json, seed_spread.json, as_picked.json)' % (args.out, args.out))
     return 0

@@ -60,6 +60,30 @@ def test_a_far_estimate_is_given_the_height_its_uncertainty_allows():
     assert target.height_tolerance(with_std_z(0.050).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.040)
 
 
+def test_a_believed_target_is_moved_onto_the_table_as_far_as_the_uncertainties_say():
+    """A far estimate 25 mm below its height, uncertain by 20 mm along its ray (base z here), the table known to
+    5 mm: the chosen target comes to within 25 * 25 / (400 + 25) mm of its height, its std along z to 4.9 mm; x and y
+    (uncorrelated with z) stay; an estimate certain to 1 mm hardly moves; without a table sigma nothing moves."""
+    rules = dataclasses.replace(RULES, table_height_sigma=0.005)
+    low = observation(0.70, 0.10, z=TABLE_Z + 0.02 - 0.025)
+
+    def with_std_z(std_z):
+        covariance = np.diag([1e-6, 1e-6, std_z ** 2, 1e-4, 1e-4, 1e-4])
+        return BlockObservation(low.detection, PoseEstimate(low.pose.T_camera_object, 0.3, 'sqp', covariance))
+    far = target.choose_target([with_std_z(0.020)], T_BASE_CAMERA, rules, (640, 400))
+    position = (T_BASE_CAMERA @ far.pose.T_camera_object)[:3, 3]
+    assert position[2] - (TABLE_Z + 0.02) == pytest.approx(-0.025 * 25 / 425)
+    np.testing.assert_allclose(position[:2], (0.70, 0.10), atol=1e-12)
+    assert target.height_std(far.pose, T_BASE_CAMERA) == pytest.approx(np.sqrt(1 / (1 / 0.020 ** 2 + 1 / 0.005 ** 2)))
+    near = target.on_the_table(with_std_z(0.001), T_BASE_CAMERA, rules)
+    assert (T_BASE_CAMERA @ near.pose.T_camera_object)[2, 3] - (TABLE_Z + 0.02) == pytest.approx(-0.025 * 25 / 26)
+    uncertain = with_std_z(0.020)
+    assert target.on_the_table(uncertain, T_BASE_CAMERA, RULES) is uncertain                   # sigma 0: off
+    assert target.on_the_table(low, T_BASE_CAMERA, rules) is low                              # no covariance
+    assert target.choose_target([with_std_z(0.020)], T_BASE_CAMERA, rules, (640, 400), on_table=False).pose \
+        .T_camera_object[2, 3] == low.pose.T_camera_object[2, 3]
+
+
 def test_an_estimate_off_its_height_tells_the_side_length_that_would_put_it_on_the_table():
     """A 38.6 mm block posed with the 40 mm model lies 3.6 % farther along the same ray (the IBVS batch's rerun
     of scene 63: 7 mm low at 0.19 m); the side length that puts it back on the table is the block's. Believed, yet

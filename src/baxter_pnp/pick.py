@@ -68,6 +68,9 @@ class PickConfig(Parameters):
                                             # the law goes on through, on its last estimate (0: re-acquire at once)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
     max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
+    table_height_sigma: float = 0.005       # how well the table top's height is known (m; table_top_z, hand-eye): a
+                                            # believed target's position is updated with it (task.target.on_the_table;
+                                            # 0: off)
 
     def validate(self):
         require = self.require
@@ -87,6 +90,8 @@ class PickConfig(Parameters):
                 'must be in [0, min(side_length / (2 sqrt 3), block_height)) m')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
+        require(math.isfinite(self.table_height_sigma) and self.table_height_sigma >= 0.0, 'table_height_sigma',
+                'must be >= 0 m (0: off)')
         require(self.place_xy is None or (len(self.place_xy) == 2 and all(map(math.isfinite, self.place_xy))),
                 'place_xy', 'must be [x, y] in metres or null')
         require(len(self.gain) == 3 and self.gain[0] >= self.gain[1] > 0, 'gain',

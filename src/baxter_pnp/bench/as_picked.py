@@ -4,8 +4,10 @@ The accuracy tables time and score the vision pipeline and each estimator on the
 does more (``task.eye.Eye.look``): ``perception.observe_blocks`` with the shape and colour asked for, the block's
 model and edge radius and the table plane (its whole-blob fallbacks, the plane prior's refusals), then the pick's
 belief rules (``task.target.choose_target``: RMS residual under ``max_residual_px``, the top face at its height on
-the table within the estimate's own tolerance). Here the table plane is the truth's, in a base frame whose z is its
-normal, and the block's edge radius is the renderer's bevel (as a user gives a die's). Counted per frame: a target
+the table within the estimate's own tolerance, then the position updated with the table's height,
+``table_height_sigma``). Here the table plane is the truth's moved along its normal by an error drawn from that
+sigma (what a robot's ``table_top_z`` and hand-eye calibration are good to), in a base frame whose z is its normal,
+and the block's edge radius is the renderer's bevel (as a user gives a die's). Counted per frame: a target
 believed; the right one (its centre within half a side of the truth); its position error (mm). Pure measurement:
 the application never sees the truth.
 """
@@ -30,13 +32,13 @@ def base_of_table(table_plane_camera):
 
 def look_at(image, spec, colour, T_camera_block, table_plane, camera, config, pick_config=pick.PickConfig()):
     """One frame's look: ``(believed, right, position error mm or None)`` for the block ``spec``
-    (``render_independent.Block``) of ``colour`` at ``T_camera_block`` on ``table_plane`` (its table top, camera
-    frame)."""
+    (``render_independent.Block``) of ``colour`` at ``T_camera_block``, the table top known as ``table_plane``
+    (camera frame)."""
     T_base_camera, table = base_of_table(table_plane)
     observations = perception.observe_blocks(image, camera, config, spec.side, spec.height, shape=spec.shape,
                                              colour=colour, table_plane=table_plane, edge_radius=spec.bevel)
     rules = target.TargetRules(spec.shape, colour, spec.side, spec.height, table, pick_config.max_residual_px,
-                               pick_config.max_height_error)
+                               pick_config.max_height_error, table_height_sigma=pick_config.table_height_sigma)
     chosen = target.choose_target(observations, T_base_camera, rules, (camera.width, camera.height))
     if chosen is None:
         return False, False, None

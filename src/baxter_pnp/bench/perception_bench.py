@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from baxter_pnp import camera as camera_module
-from baxter_pnp import models, pose, synthetic, vision
+from baxter_pnp import models, pick, pose, synthetic, vision
 from baxter_pnp.bench import as_picked, photometric, render_independent
 from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
@@ -281,15 +281,18 @@ def format_latency(results):
 
 def measure_as_picked(kinds, counts, seed, camera, config):
     """Per independent-renderer dataset of ``kinds`` (``counts``: frames of each; the accuracy tables' frames, same
-    seeds): ``as_picked.summarise_looks`` of each frame's look as a pick makes it (``as_picked.look_at``, with the
-    true table plane)."""
+    seeds): ``as_picked.summarise_looks`` of each frame's look as a pick makes it (``as_picked.look_at``, the table
+    plane the truth's off by an error drawn from the pick's ``table_height_sigma``)."""
+    sigma = pick.PickConfig().table_height_sigma
     results = []
     for kind in [k for k in kinds if k in R2_DATASETS]:
-        rng = np.random.default_rng(set_seed(kind, seed) + 1)
+        rng, errors = np.random.default_rng(set_seed(kind, seed) + 1), np.random.default_rng(set_seed(kind, seed) + 2)
         looks = []
         for spec, T, colour in make_dataset(kind, counts[kind], set_seed(kind, seed), camera):
             image, _ = render_independent.render_scene(camera, [(spec, T)], rng)
-            looks.append(as_picked.look_at(image, spec, colour, T, true_table_plane(T, spec.height), camera, config))
+            true = true_table_plane(T, spec.height)
+            known = models.Plane(true.normal, true.offset + errors.normal(0.0, sigma))
+            looks.append(as_picked.look_at(image, spec, colour, T, known, camera, config))
         results.append(as_picked.summarise_looks(kind, looks))
     return results
 

@@ -36,15 +36,16 @@ class TargetRules:
     max_residual_px: float
     max_height_error: float
     place_xy: Optional[Sequence[float]] = None
+    table_height_sigma: float = 0.0   # how well the table top's height is known (m); 0: the target keeps its estimate
 
     @classmethod
     def of(cls, task_config, table):
         """The rules of a task config with ``shape``, ``colour``, ``side_length``, ``block_height``,
-        ``max_residual_px``, ``max_height_error`` and ``place_xy`` (e.g. ``pick.PickConfig``) on the ``table`` top
-        (``models.Plane`` in base)."""
+        ``max_residual_px``, ``max_height_error``, ``place_xy`` and ``table_height_sigma`` (e.g. ``pick.PickConfig``)
+        on the ``table`` top (``models.Plane`` in base)."""
         c = task_config
         return cls(c.shape, c.colour, c.side_length, c.block_height, table, c.max_residual_px,
-                   c.max_height_error, c.place_xy)
+                   c.max_height_error, c.place_xy, c.table_height_sigma)
 
 
 def believable(observation, T_base_camera, rules, on_table=True, placed_too=False):
@@ -125,7 +126,32 @@ def choose_target(observations, T_base_camera, rules, image_size, T_base_last=No
         if min(distances) < TRACK_RADIUS:
             return posed[int(np.argmin(distances))]
     chosen = vision.select_target([o.detection for o in posed], rules.shape, rules.colour, image_size)
-    return next(o for o in posed if o.detection is chosen)
+    chosen = next(o for o in posed if o.detection is chosen)
+    return on_the_table(chosen, T_base_camera, rules) if on_table else chosen
+
+
+def on_the_table(observation, T_base_camera, rules):
+    """``observation`` with its position updated by the table: its top face lies ``block_height`` above the table
+    top, known to ``table_height_sigma`` (a scalar Kalman update along the estimate's own translation covariance,
+    ``K = C n / (n^T C n + sigma^2)``; the covariance shrinks to match). A far block's depth from its polygon's
+    size is uncertain by centimetres, the table's height by millimetres; a close block's estimate hardly moves.
+    Applied to a believed target only, after the height rule has judged its raw estimate. Unchanged without a
+    ``table_height_sigma`` or a covariance."""
+    estimate = observation.pose
+    if rules.table_height_sigma <= 0.0 or estimate.covariance is None:
+        return observation
+    R_base_camera, t_base_camera = T_base_camera[:3, :3], T_base_camera[:3, 3]
+    covariance = R_base_camera @ estimate.covariance[:3, :3] @ R_base_camera.T       # translation, in base
+    position = R_base_camera @ estimate.T_camera_object[:3, 3] + t_base_camera
+    normal = rules.table.normal
+    innovation = rules.table.offset + rules.block_height - normal @ position
+    gain = covariance @ normal / (normal @ covariance @ normal + rules.table_height_sigma ** 2)
+    T_camera_object = estimate.T_camera_object.copy()
+    T_camera_object[:3, 3] += R_base_camera.T @ (gain * innovation)
+    updated = estimate.covariance.copy()
+    updated[:3, :3] = R_base_camera.T @ (covariance - np.outer(gain, normal @ covariance)) @ R_base_camera
+    return dataclasses.replace(observation, pose=dataclasses.replace(estimate, T_camera_object=T_camera_object,
+                                                                     covariance=updated))
 
 
 def predicted_target(observation, T_base_block, T_base_camera, camera, model):

@@ -43,7 +43,9 @@ for a small square seen straight on (several degrees at 0.5 px), and it removes 
 ambiguity; the plane's offset, in contrast, carries the table height and hand-eye translation errors
 (millimetres to centimetres), larger than the image's own depth error (about 1 mm at 161 mm), so
 imposing it would degrade depth. A soft prior rather than a hard constraint keeps a tilted table or
-an object resting on something from forcing a wrong normal when the image clearly disagrees.
+an object resting on something from forcing a wrong normal when the image clearly disagrees. Where the image's
+depth is the worse of the two (a small block far away), the task layer weighs the offset in afterwards, at each
+one's uncertainty, for the target it believes (``task.target.on_the_table``).
 """
 import functools
 import math

@@ -9,7 +9,8 @@ into base) up to twice that: a far block seen at a grazing angle, whose depth is
 more, is believed and approached (PBVS steps a fraction of the way, the velocity laws go to the view pose, and
 the nearer looks shrink its uncertainty, and the tolerance with it), not dropped. Blocks within two sides of
 ``place_xy`` count as already placed. Among believable ones the target is the one nearest
-the last estimate (tracking the same block), else the largest / most central (``vision.select_target``).
+the last estimate (tracking the same block), else the largest / most central (``vision.select_target``); its
+position is then updated with the table's height, known to ``table_height_sigma`` (``on_the_table``).
 """
 import dataclasses
 from dataclasses import dataclass

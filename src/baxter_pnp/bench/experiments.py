@@ -33,7 +33,7 @@ import multiprocessing
 import os
 import time
 import traceback
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -202,8 +202,9 @@ def connect_rig():
     session.connect()
     query = BlockQuery(config.shape, config.colour, config.side_length, config.block_height, config.estimator,
                        session.table, config.edge_radius)
-    return DepthRig(session, Motion(session), Eye(session, vision.VisionConfig.from_yaml(), query),
-                    target.TargetRules.of(config, session.table))
+    # the experiment measures the image's depth: the target's estimate as posed, not pulled towards the table's height
+    rules = replace(target.TargetRules.of(config, session.table), table_height_sigma=0.0)
+    return DepthRig(session, Motion(session), Eye(session, vision.VisionConfig.from_yaml(), query), rules)
 
 
 def sample_depth(rig, condition, pose_name, count, T_base_block_true):

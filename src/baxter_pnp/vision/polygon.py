@@ -1,7 +1,8 @@
 """Polygon stages: a blob's outline (contour, pixels) -> the vertices (k, 2) of a convex polygon, and its shape.
 
 Douglas-Peucker, the merge of close vertices (the thesis's "high pass filter"), restored cut corners, side-line
-fitting, shape from the vertex count or, for a small blurred polygon, from its outline's harmonics, vertex order. Pixels are (u, v) = (column, row), floats.
+fitting, shape from the vertex count or, for a small blurred polygon, from its outline's harmonics, vertex order.
+Pixels are (u, v) = (column, row), floats.
 """
 import math
 from typing import NamedTuple, Optional

@@ -373,11 +373,12 @@ def _polygon_detection(image_bgr, outline, offset, colour, config, value=None, d
     outline's harmonics say it has corners (``_harmonics``, ``harmonic_shape.min_strength``); it is judged on the
     polygon before the corners that ``cut_corner_clear_area_fraction`` restores are (a disc's pentagon would become
     a square). A polygon up to ``harmonic_shape.max_size_px`` takes the harmonics' vertex count where they are
-    believed (the hull reduced to it, ``polygon.hull_polygon``). ``quality`` = solidity of the outline x
-    exp(-edge RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)). A polygon cut by the image border with no edge of its own along a straight image
-    edge (the sub-pixel stage's line within ``border_edge_max_rms_px``) is None: its straight side is the
-    border's, nothing says it is a block's (a button cut by the border, docs/perception.md "Border-cut fragments").
-    A coarse polygon narrower than ``min_aspect`` (``_aspect``) is None: a sliver of tape or of a board's edge.
+    believed (the hull reduced to it, ``polygon.hull_polygon``). ``quality`` = solidity of the outline x exp(-edge
+    RMS / ``max_rms_px``) x (1 - fallbacks / (2 n)). A polygon cut by the image border with no edge of its own along
+    a straight image edge (the sub-pixel stage's line within ``border_edge_max_rms_px``) is None: its straight side
+    is the border's, nothing says it is a block's (a button cut by the border, docs/perception.md "Border-cut
+    fragments"). A coarse polygon narrower than ``min_aspect`` (``_aspect``) is None: a sliver of tape or of a
+    board's edge.
     """
     hull = cv2.convexHull(outline)
     coarse = approximate_polygon(hull, config.approx_epsilon_fraction)

@@ -71,8 +71,8 @@ def parse_args(argv):
     if not (math.isfinite(args.side) and args.side > 0 and math.isfinite(args.height) and args.height > 0):
         parser.error('--side and --height must be positive numbers (metres)')
     try:
-        for shape in [args.shape] if args.shape else sorted(models.SHAPES):
-            models.seen_model(shape, args.side, args.height, args.edge_radius)
+        models.check_edge_radius(args.side, args.height, args.edge_radius,
+                                 [args.shape] if args.shape else tuple(models.SHAPES))
     except ValueError as exc:
         parser.error('--edge-radius: %s' % exc)
     if args.every < 1 or (args.max_frames is not None and args.max_frames < 1):

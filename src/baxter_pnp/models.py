@@ -71,20 +71,31 @@ def model_for(shape, side, height=0.02):
 EDGE_INSET_FRACTION = 0.2
 
 
+def check_edge_radius(side, height, edge_radius, shapes=tuple(SHAPES)):
+    """ValueError (saying what the radius must be) unless ``edge_radius`` (m) is a rim radius a block of ``side``
+    and ``height`` (m) can have for every one of ``shapes``: non-negative, less than the top face's apothem and than
+    the height."""
+    if not (math.isfinite(edge_radius) and edge_radius >= 0.0):
+        raise ValueError(f'must be a non-negative number of metres, got {edge_radius!r}')
+    for shape in shapes:
+        apothem = side / (2.0 * math.tan(math.pi / SHAPES[shape]))
+        if edge_radius > 0.0 and edge_radius >= (min(apothem, height) if height > 0 else apothem):
+            raise ValueError(f'must be less than the block\'s apothem and height, got {edge_radius} m for a {side} m '
+                             f'{shape} {height} m tall')
+
+
 def seen_model(shape, side, height=0.02, edge_radius=0.0):
     """The model the image shows of a ``shape`` block of ``side`` and ``height`` (m) whose top rim is rounded over
     with radius ``edge_radius`` (m; 0: sharp, the block's own model): its top face inset by ``EDGE_INSET_FRACTION``
     of the radius, the same centre and height. What the pose estimator fits to the detected vertices: a die's
     rounded edges make its top face look smaller, and a model of the sharp cube puts it farther away than it is."""
-    if not (math.isfinite(edge_radius) and edge_radius >= 0.0):
-        raise ValueError(f'edge_radius must be a non-negative number of metres, got {edge_radius!r}')
+    try:
+        check_edge_radius(side, height, edge_radius, (shape,))
+    except ValueError as exc:
+        raise ValueError(f'edge_radius {exc}') from None
     sharp = model_for(shape, side, height)
     if edge_radius == 0.0:
         return sharp
-    apothem = sharp.circumradius * math.cos(math.pi / sharp.n)
-    if edge_radius >= (min(apothem, height) if height > 0 else apothem):
-        raise ValueError(f'edge_radius must be less than the block\'s apothem and height, got {edge_radius} m for a '
-                         f'{side} m {shape} {height} m tall')
     return model_for(shape, side - 2.0 * EDGE_INSET_FRACTION * edge_radius * math.tan(math.pi / sharp.n), height)
 
 

@@ -85,9 +85,10 @@ class PickConfig(Parameters):
         require(0.0 < self.view_row_fraction < 1.0, 'view_row_fraction', 'must be in (0, 1)')
         require(0.0 <= self.stall_progress < 1.0, 'stall_progress', 'must be in [0, 1)')
         require(0.0 <= self.grasp_depth < self.block_height, 'grasp_depth', 'must be in [0, block_height)')
-        inradius = self.side_length / (2.0 * math.sqrt(3.0))        # a triangle's: the looks may pose any shape
-        require(0.0 <= self.edge_radius < min(inradius, self.block_height), 'edge_radius',
-                'must be in [0, min(side_length / (2 sqrt 3), block_height)) m')
+        try:                                    # every shape: the table task's looks pose any of them
+            models.check_edge_radius(self.side_length, self.block_height, self.edge_radius)
+        except ValueError as exc:
+            require(False, 'edge_radius', str(exc))
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
         require(math.isfinite(self.table_height_sigma) and self.table_height_sigma >= 0.0, 'table_height_sigma',

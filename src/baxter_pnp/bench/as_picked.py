@@ -30,10 +30,11 @@ def base_of_table(table_plane_camera):
     return T_base_camera, Plane.level(table_plane_camera.offset)
 
 
-def look_at(image, spec, colour, T_camera_block, table_plane, camera, config, pick_config=pick.PickConfig()):
+def look_at(image, spec, colour, T_camera_block, table_plane, camera, config, pick_config=None):
     """One frame's look: ``(believed, right, position error mm or None)`` for the block ``spec``
     (``render_independent.Block``) of ``colour`` at ``T_camera_block``, the table top known as ``table_plane``
-    (camera frame)."""
+    (camera frame); ``pick_config`` (default ``pick.PickConfig()``) gives the belief rules."""
+    pick_config = pick_config or pick.PickConfig()
     T_base_camera, table = base_of_table(table_plane)
     observations = perception.observe_blocks(image, camera, config, spec.side, spec.height, shape=spec.shape,
                                              colour=colour, table_plane=table_plane, edge_radius=spec.bevel)

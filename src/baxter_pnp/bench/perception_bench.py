@@ -40,7 +40,7 @@ from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
 
 COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 30), 'yellow': (30, 200, 220)}
-ESTIMATORS = ('sqp', 'sqp+plane', 'sqp+edge', 'ippe', 'sqpnp')     # the module docstring
+ESTIMATORS = ('sqp', 'sqp+plane', 'sqp+edge', 'ippe', 'sqpnp')     # described in the module docstring
 BLOCK_HEIGHT = 0.02
 PROJECT_DATASETS = ('mixed', 'green40', 'depth161')
 R2_DATASETS = ('green40_r2', 'mixed_r2', 'dice_r2', 'small_r2')

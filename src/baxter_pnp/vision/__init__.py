@@ -52,7 +52,8 @@ Beyond the thesis (all switchable in the YAML):
   outline, whitened by its second moments (an affine view of a regular polygon becomes a regular one), as a
   radius against the angle; its strongest harmonic of 3-6 (amplitude times order, undoing blur's damping) is the
   vertex count where it beats the runner-up twice over and the corner rules counted otherwise (a 15-25 px
-  pentagon's blunt corners made a square), the hull then reduced to that many vertices (``hull_polygon``).
+  pentagon's blunt corners made a square), the hull then reduced to that many vertices (``hull_polygon``); at half a
+  sharp polygon's amplitude they also overrule the disc test (a blurred 20 px hexagon fits an ellipse as well).
 - Side faces as bright as the top (``cut_side_faces``, polygons of 40 px and more): an edge with a crease
   inside it, a straight step of V nearly parallel to it all along it, the strip before it evenly darker than
   the face beyond, is moved onto the crease (docs/perception.md, "Side faces as bright as the top").
@@ -96,11 +97,9 @@ from baxter_pnp.vision.subpixel import refine_vertices
 from baxter_pnp.vision.topface import isolate_top_face
 
 __all__ = ['DEFAULT_VISION_YAML', 'LAPLACIAN_KERNEL', 'SHAPE_OF_VERTEX_COUNT', 'Detection', 'HarmonicShapeConfig',
-           'RoiConfig',
-           'SideFaceConfig', 'SubpixelConfig', 'TopFaceConfig', 'blob_detection', 'VisionConfig',
+           'RoiConfig', 'SideFaceConfig', 'SubpixelConfig', 'TopFaceConfig', 'blob_detection', 'VisionConfig',
            'approximate_polygon', 'classify_shape', 'colour_mask', 'cut_side_faces', 'detect', 'draw_detections',
            'find_blobs', 'fit_polygon_sides', 'gamma_lut', 'hull_polygon', 'isolate_top_face', 'laplacian_sharpen',
-           'lowpass',
-           'lowpass_kernel', 'lowpass_kernel_1d', 'merge_close_vertices', 'open_close', 'order_vertices',
+           'lowpass', 'lowpass_kernel', 'lowpass_kernel_1d', 'merge_close_vertices', 'open_close', 'order_vertices',
            'oversaturate', 'refine_vertices', 'remove_cut_corners', 'remove_flat_vertices', 'saturation_threshold',
            'select_target', 'shape_harmonics', 'validate_image']

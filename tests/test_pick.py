@@ -26,6 +26,7 @@ def test_config_validation_names_the_key():
                         ({'side_length': -1}, 'side_length'), ({'grasp_depth': 0.05}, 'grasp_depth'),
                         ({'place_xy': [0.5]}, 'place_xy'), ({'gain': [0.1, 1.0, 3]}, 'gain'),
                         ({'edge_radius': -0.001}, 'edge_radius'), ({'edge_radius': 0.012}, 'edge_radius'),
+                        ({'far_height_error': 0.01}, 'far_height_error'),
                         ({'colur': 'green'}, 'colur')):
         with pytest.raises(ValueError, match=key):
             pick.PickConfig.from_dict(values)

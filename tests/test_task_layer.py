@@ -47,17 +47,23 @@ def test_only_believable_estimates_are_targets():
 
 def test_a_far_estimate_is_given_the_height_its_uncertainty_allows():
     """2.5 cm below the table: not believed when known to 2 mm, believed when the estimate itself says its height is
-    uncertain by 10 mm (3 sigma: 30 mm), never beyond twice max_height_error (an estimate uncertain by 50 mm)."""
-    low = observation(0.70, 0.10, z=TABLE_Z + 0.02 - 0.025)
+    uncertain by 10 mm (3 sigma: 30 mm); never beyond far_height_error (80 mm: a far 20 px die's estimate,
+    uncertain by 50 mm, believed 75 mm low, not 85 mm)."""
 
-    def with_std_z(std_z):            # the camera looks straight down: base z is -camera z
+    def uncertain(depth_below, std_z):      # the camera looks straight down: base z is -camera z
+        low = observation(0.70, 0.10, z=TABLE_Z + 0.02 - depth_below)
         covariance = np.diag([1e-6, 1e-6, std_z ** 2, 1e-4, 1e-4, 1e-4])
         return BlockObservation(low.detection, PoseEstimate(low.pose.T_camera_object, 0.3, 'sqp', covariance))
-    assert target.height_tolerance(with_std_z(0.010).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.030)
-    assert not target.believable(with_std_z(0.002), T_BASE_CAMERA, RULES)
-    assert target.believable(with_std_z(0.010), T_BASE_CAMERA, RULES)
+    assert target.height_tolerance(uncertain(0.025, 0.010).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.030)
+    assert not target.believable(uncertain(0.025, 0.002), T_BASE_CAMERA, RULES)
+    assert target.believable(uncertain(0.025, 0.010), T_BASE_CAMERA, RULES)
     assert not target.believable(observation(0.70, 0.10, z=TABLE_Z + 0.02 - 0.045), T_BASE_CAMERA, RULES)
-    assert target.height_tolerance(with_std_z(0.050).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.040)
+    assert target.height_tolerance(uncertain(0.025, 0.020).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.060)
+    assert target.height_tolerance(uncertain(0.025, 0.050).pose, T_BASE_CAMERA, RULES) == pytest.approx(0.080)
+    assert target.believable(uncertain(0.075, 0.050), T_BASE_CAMERA, RULES)
+    assert not target.believable(uncertain(0.085, 0.050), T_BASE_CAMERA, RULES)
+    closer = dataclasses.replace(RULES, far_height_error=0.04)
+    assert not target.believable(uncertain(0.075, 0.050), T_BASE_CAMERA, closer)
 
 
 def test_a_believed_target_is_moved_onto_the_table_as_far_as_the_uncertainties_say():

@@ -68,6 +68,8 @@ class PickConfig(Parameters):
                                             # the law goes on through, on its last estimate (0: re-acquire at once)
     max_residual_px: float = 2.0            # estimates with a larger RMS reprojection error are not trusted (occlusion)
     max_height_error: float = 0.02          # ... nor those putting a block on the table this far off its height (m)
+    far_height_error: float = 0.08          # ... or, for an estimate uncertain along z, 3 of its std up to this (m):
+                                            # a 15-25 px block's size fixes its depth to 1-3 cm (task.target)
     table_height_sigma: float = 0.005       # how well the table top's height is known (m; table_top_z, hand-eye): a
                                             # believed target's position is updated with it (task.target.on_the_table;
                                             # 0: off)
@@ -89,6 +91,7 @@ class PickConfig(Parameters):
             models.check_edge_radius(self.side_length, self.block_height, self.edge_radius)
         except ValueError as exc:
             require(False, 'edge_radius', str(exc))
+        require(self.far_height_error >= self.max_height_error, 'far_height_error', 'must be >= max_height_error')
         require(self.max_lost >= 0, 'max_lost', 'must be >= 0')
         require(self.max_predicted_looks >= 0, 'max_predicted_looks', 'must be >= 0')
         require(math.isfinite(self.table_height_sigma) and self.table_height_sigma >= 0.0, 'table_height_sigma',

@@ -39,7 +39,8 @@ def look_at(image, spec, colour, T_camera_block, table_plane, camera, config, pi
     observations = perception.observe_blocks(image, camera, config, spec.side, spec.height, shape=spec.shape,
                                              colour=colour, table_plane=table_plane, edge_radius=spec.bevel)
     rules = target.TargetRules(spec.shape, colour, spec.side, spec.height, table, pick_config.max_residual_px,
-                               pick_config.max_height_error, table_height_sigma=pick_config.table_height_sigma)
+                               pick_config.max_height_error, table_height_sigma=pick_config.table_height_sigma,
+                               far_height_error=pick_config.far_height_error)
     chosen = target.choose_target(observations, T_base_camera, rules, (camera.width, camera.height))
     if chosen is None:
         return False, False, None

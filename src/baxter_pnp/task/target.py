@@ -5,7 +5,7 @@ A look gives ``perception.BlockObservation`` s (pose in the camera frame); ``T_b
 in ``base``. An estimate is *believable* when its RMS reprojection residual is below ``max_residual_px`` and (a
 block lying on the table) its top face is within ``height_tolerance`` of the table top + block height:
 ``max_height_error``, or three of the estimate's own standard deviations along base z (its covariance rotated
-into base) up to twice that: a far block seen at a grazing angle, whose depth is uncertain by a centimetre or
+into base) up to ``far_height_error``: a far block seen at a grazing angle, whose depth is uncertain by a centimetre or
 more, is believed and approached (PBVS steps a fraction of the way, the velocity laws go to the view pose, and
 the nearer looks shrink its uncertainty, and the tolerance with it), not dropped. Blocks within two sides of
 ``place_xy`` count as already placed. Among believable ones the target is the one nearest
@@ -38,15 +38,16 @@ class TargetRules:
     max_height_error: float
     place_xy: Optional[Sequence[float]] = None
     table_height_sigma: float = 0.0   # how well the table top's height is known (m); 0: the target keeps its estimate
+    far_height_error: float = 0.08    # the most an uncertain (far) estimate's height tolerance grows to (m)
 
     @classmethod
     def of(cls, task_config, table):
         """The rules of a task config with ``shape``, ``colour``, ``side_length``, ``block_height``,
-        ``max_residual_px``, ``max_height_error``, ``place_xy`` and ``table_height_sigma`` (e.g. ``pick.PickConfig``)
-        on the ``table`` top (``models.Plane`` in base)."""
+        ``max_residual_px``, ``max_height_error``, ``place_xy``, ``table_height_sigma`` and ``far_height_error``
+        (e.g. ``pick.PickConfig``) on the ``table`` top (``models.Plane`` in base)."""
         c = task_config
         return cls(c.shape, c.colour, c.side_length, c.block_height, table, c.max_residual_px,
-                   c.max_height_error, c.place_xy, c.table_height_sigma)
+                   c.max_height_error, c.place_xy, c.table_height_sigma, c.far_height_error)
 
 
 def believable(observation, T_base_camera, rules, on_table=True, placed_too=False):
@@ -85,7 +86,7 @@ def height_tolerance(pose, T_base_camera, rules):
     std_z = height_std(pose, T_base_camera)
     if std_z is None:
         return rules.max_height_error
-    return float(np.clip(3.0 * std_z, rules.max_height_error, 2.0 * rules.max_height_error))
+    return float(np.clip(3.0 * std_z, rules.max_height_error, max(rules.far_height_error, rules.max_height_error)))
 
 
 def height_std(pose, T_base_camera):

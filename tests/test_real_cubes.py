@@ -70,9 +70,6 @@ KNOWN_POSE_FAILURES = {
     'c4-09': 'a blue square found 3.7 px off (since session 18 the weaker floor also runs beside a good detection of '
              'its colour in the same region), its pose\'s square 4.5 px off: top-face isolation does not split off the '
              'side face along its upper left (outline = whole blob, 1619 px^2 for a ~1200 px^2 face)',
-    'c4-17': 'a dark teal-green small cube (C 15-19, h 173 deg) whose mask covers only the lighter part of its top '
-             'face: found (its pentagon restored to a square, 3.4 px off), but the square reads too large: depth '
-             '0.844 m for 1.016 m',
     'c4-08': 'a red square whose left corner lies on the side face (the outline keeps part of the side face on its '
              'left: 1494 px^2 for a ~1230 px^2 face): a projected corner 6.6 px from the labelled one',
 }

@@ -4,17 +4,25 @@ Composes the vision pipeline (``vision.detect``) with the model-based pose estim
 (``pose.estimate_pose``), and draws the annotated debug image. Used by ``scripts/detect_image.py``,
 the perception benchmark and the pick application.
 """
+import dataclasses
 from dataclasses import dataclass
 from typing import Optional
 
 import cv2
 import numpy as np
 
-from baxter_pnp import models, pose, vision
+from baxter_pnp import models, pose, silhouette, vision
 
 # px: a top face split off its blob whose pose leaves a larger RMS residual has its whole blob tried too (the better
 # fit is kept): a shadow's edge across the face cut a corner off it (pick.PickConfig.max_residual_px believes 2 px)
 SPLIT_FACE_MAX_RESIDUAL_PX = 2.0
+# With the table plane known, a block whose polygon's mean side is under this (px), or whose polygon got no pose or
+# one with a residual over SPLIT_FACE_MAX_RESIDUAL_PX, is posed from its silhouette on the table
+# (``silhouette.fit_on_table``) when that fit overlaps its blob's outline by at least SILHOUETTE_MIN_OVERLAP
+# (intersection over union): a 15-30 px polygon's size fixes its depth to centimetres only, the table to millimetres
+# (docs/perception.md, "A small block's pose from its silhouette on the table").
+SILHOUETTE_MAX_SIDE_PX = 30.0
+SILHOUETTE_MIN_OVERLAP = 0.85
 
 
 @dataclass
@@ -53,7 +61,9 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     split off its blob gets no pose, is not ``shape``, or is posed with a residual above
     ``SPLIT_FACE_MAX_RESIDUAL_PX``, the whole blob is tried (``vision.blob_detection``; of two poses the one with the
     smaller residual is kept): a shadow across the face (the arm's, over the block it approaches) cuts the face as a
-    side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape.
+    side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape. With a
+    ``table_plane``, a polygon that got no pose or a poor one, or a small one whose pose misses the table
+    (``_on_the_table``), is posed from its silhouette on the table when that fits (method ``'silhouette'``).
     ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
     size = vision.validate_image(image_bgr).shape[:2]
@@ -63,32 +73,74 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     detections = vision.detect(image_bgr, vision_config, colours=None if colour is None else [colour])
     observations = []
     for detection in detections:
-        if shape is not None and detection.shape != shape:
-            observation = _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera,
-                                                  method, table_plane, edge_radius)
-            if observation is not None and observation.pose is not None:
-                observations.append(observation)
-            continue
-        model = models.seen_model(detection.shape, side, height, edge_radius)
-        try:
-            estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method,
-                                          table_plane=table_plane)
-        except pose.PoseEstimationError as exc:
-            observation = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height,
-                                                  camera, method, table_plane, edge_radius)
-            if observation is None or observation.pose is None:
-                error = str(exc) + ('' if observation is None else f'; the whole blob: {observation.error}')
-                observation = BlockObservation(detection, None, error)
+        observation = _polygon_observation(image_bgr, detection, vision_config, shape, side, height, camera, method,
+                                           table_plane, edge_radius)
+        if observation is not None and table_plane is not None:
+            observation = _on_the_table(observation, camera, side, height, table_plane, edge_radius)
+        if observation is not None:
             observations.append(observation)
-            continue
-        observation = BlockObservation(detection, estimate)
-        if estimate.residual_px > SPLIT_FACE_MAX_RESIDUAL_PX:
-            whole = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height, camera,
-                                            method, table_plane, edge_radius)
-            if whole is not None and whole.pose is not None and whole.pose.residual_px < estimate.residual_px:
-                observation = whole
-        observations.append(observation)
     return observations
+
+
+def _polygon_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane,
+                         edge_radius):
+    """``detection``'s observation from its polygon (``observe_blocks``), or None for a detection of another shape
+    than ``shape`` whose whole blob is no posed ``shape`` either."""
+    if shape is not None and detection.shape != shape:
+        observation = _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera,
+                                              method, table_plane, edge_radius)
+        return observation if observation is not None and observation.pose is not None else None
+    model = models.seen_model(detection.shape, side, height, edge_radius)
+    try:
+        estimate = pose.estimate_pose(detection.vertices_px, camera, model, method=method, table_plane=table_plane)
+    except pose.PoseEstimationError as exc:
+        observation = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height,
+                                              camera, method, table_plane, edge_radius)
+        if observation is None or observation.pose is None:
+            error = str(exc) + ('' if observation is None else f'; the whole blob: {observation.error}')
+            observation = BlockObservation(detection, None, error)
+        return observation
+    observation = BlockObservation(detection, estimate)
+    if estimate.residual_px > SPLIT_FACE_MAX_RESIDUAL_PX:
+        whole = _whole_blob_observation(image_bgr, detection, vision_config, detection.shape, side, height, camera,
+                                        method, table_plane, edge_radius)
+        if whole is not None and whole.pose is not None and whole.pose.residual_px < estimate.residual_px:
+            observation = whole
+    return observation
+
+
+def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
+    """``observation`` posed from its silhouette on the table (method ``'silhouette'``: ``residual_px`` the mean gap
+    between the fitted prism's outline and the blob's, no covariance; its vertices the seen top face's) when its
+    polygon is small or got no good pose and the fit overlaps the blob by ``SILHOUETTE_MIN_OVERLAP``; else itself.
+    The shape stays the polygon's: at 15-30 px a pentagon's or a hexagon's silhouette fits a square prism's as well
+    (intersection over union 0.88-0.90)."""
+    detection, estimate = observation.detection, observation.pose
+    polygon = detection.vertices_px
+    mean_side = float(np.linalg.norm(polygon - np.roll(polygon, -1, axis=0), axis=1).mean())
+    if (estimate is not None and estimate.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
+            and (mean_side >= SILHOUETTE_MAX_SIDE_PX or _sits_on(estimate, table_plane, height))):
+        return observation
+    outline = detection.blob_contour if detection.blob_contour is not None else detection.contour
+    fit = silhouette.fit_on_table(outline, camera, models.model_for(detection.shape, side, height), table_plane)
+    if fit is None or fit.overlap < SILHOUETTE_MIN_OVERLAP:
+        return observation
+    seen = models.seen_model(detection.shape, side, height, edge_radius)
+    T = fit.T_camera_block.copy()
+    T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
+    vertices = camera.project(seen.vertices @ fit.T_camera_block[:3, :3].T + fit.T_camera_block[:3, 3])
+    seen_detection = dataclasses.replace(detection, vertices_px=vertices, centroid_px=vertices.mean(axis=0))
+    return BlockObservation(seen_detection, pose.PoseEstimate(T, fit.gap_px, 'silhouette'))
+
+
+def _sits_on(estimate, table_plane, height):
+    """True when ``estimate`` puts the top face ``height`` above ``table_plane`` within three of its standard
+    deviations along the plane's normal (false without a covariance)."""
+    if estimate.covariance is None:
+        return False
+    normal = table_plane.normal
+    error = normal @ estimate.T_camera_object[:3, 3] - (table_plane.offset + height)
+    return abs(error) <= 3.0 * float(np.sqrt(normal @ estimate.covariance[:3, :3] @ normal))
 
 
 def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, height, camera, method, table_plane,

@@ -538,7 +538,7 @@ def _make_estimate(R, t, observation, model, method, table_normal):
     points = _vertices_in_camera(R, t, model)      # in the observed order (before the symmetry turn)
     squared_error = _squared_error_px(points, observation)
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = _canonical_rotation(R, model), t
+    T[:3, :3], T[:3, 3] = canonical_rotation(R, model), t
     return PoseEstimate(T, math.sqrt(squared_error / model.n), method,
                         _covariance(points, R[:, 2], t, observation, squared_error, table_normal))
 
@@ -567,8 +567,8 @@ def _covariance(points, normal, t, observation, squared_error, table_normal):
     return covariance if np.isfinite(covariance).all() else None
 
 
-def _canonical_rotation(R, model):
-    """R turned about the face normal by a symmetry multiple so its yaw lies in (-pi/n, pi/n]."""
+def canonical_rotation(R, model):
+    """R turned about the face normal by a symmetry multiple so its yaw lies in (-pi/n, pi/n] (``PoseEstimate``)."""
     yaw, reference = _yaw_about_normal(R)
     half = model.symmetry_angle / 2.0
     yaw = (yaw + half) % model.symmetry_angle - half        # [-pi/n, pi/n)

@@ -199,14 +199,16 @@ class Picker:
                                                    np.degrees(rotation), error_px, depth,
                                                    np.round(look.T_base_block[:3, 3], 5).tolist(),
                                                    np.round(1000 * block_in_gripper, 2).tolist(),
-                                                   None if std is None else round(1000 * std, 2)))
+                                                   None if std is None else round(1000 * std, 2),
+                                                   look.target.pose.method))
         self.result.steps = step
         self.result.final_error_mm_est = 1000 * translation
         rospy.loginfo('pick [%s] step %d: error %.1f mm, %.1f deg, %.1f px; block depth %.1f mm, at %s mm in base%s%s'
                       % (self.config.mode, step, 1000 * translation, np.degrees(rotation), error_px, 1000 * depth,
                          np.round(1000 * look.T_base_block[:3, 3], 1).tolist(),
                          '' if std is None else ' (+- %.1f mm)' % (1000 * std),
-                         ' (not believably in view: its last estimate)' if look.predicted else ''))
+                         ' (not believably in view: its last estimate)' if look.predicted else
+                         ' (posed by its silhouette on the table)' if look.target.pose.method == 'silhouette' else ''))
         return translation, rotation
 
     def approach_pbvs(self):

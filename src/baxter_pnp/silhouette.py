@@ -87,13 +87,11 @@ class _Problem:
         along = self.normal @ ray
         distance = (plane.offset + 0.5 * model.height) / along if along != 0.0 else -1.0
         self.start = ray * distance + 0.5 * model.height * self.normal if distance > 0 else None
-        n = model.n
         self.plane_xy = model.vertices[:, :2]                             # block frame, z = 0
         middles = 0.5 * (self.plane_xy + np.roll(self.plane_xy, -1, axis=0))
         self.face_normals = middles / np.linalg.norm(middles, axis=1, keepdims=True)     # side face k: k -> k + 1
         self.drop = model.height * self.normal
         self._subsets = {}
-        self._n = n
 
     def pose(self, params):
         """(R, top-face centre) of the parameters."""
@@ -117,7 +115,7 @@ class _Problem:
     def _subset_indices(self, visible):
         """Per subset of the side faces ``visible``: the indices of its hull's points (top, then bottom vertices)."""
         if visible not in self._subsets:
-            n = self._n
+            n = self.model.n
             self._subsets[visible] = [list(range(n)) + [n + j for k in faces for j in (k, (k + 1) % n)]
                                       for count in range(len(visible) + 1)
                                       for faces in itertools.combinations(visible, count)]
@@ -133,6 +131,7 @@ class _Problem:
         return result
 
     def cost(self, params):
+        """One minus the best overlap (the objective)."""
         return 1.0 - max((overlap for overlap, _ in self.overlaps(params)), default=0.0)
 
     def fit(self, params):

@@ -1,8 +1,9 @@
 """Perception: one camera image in -> detected blocks with their 3D pose out (no ROS).
 
 Composes the vision pipeline (``vision.detect``) with the model-based pose estimator
-(``pose.estimate_pose``), and draws the annotated debug image. Used by ``scripts/detect_image.py``,
-the perception benchmark and the pick application.
+(``pose.estimate_pose``; with the table plane known, ``silhouette.fit_on_table`` for the polygons it cannot pose
+well), and draws the annotated debug image. Used by ``scripts/detect_image.py``, the perception benchmark and the
+pick application.
 """
 import dataclasses
 from dataclasses import dataclass
@@ -16,8 +17,9 @@ from baxter_pnp import models, pose, silhouette, vision
 # px: a top face split off its blob whose pose leaves a larger RMS residual has its whole blob tried too (the better
 # fit is kept): a shadow's edge across the face cut a corner off it (pick.PickConfig.max_residual_px believes 2 px)
 SPLIT_FACE_MAX_RESIDUAL_PX = 2.0
-# With the table plane known, a block whose polygon's mean side is under this (px), or whose polygon got no pose or
-# one with a residual over SPLIT_FACE_MAX_RESIDUAL_PX, is posed from its silhouette on the table
+# With the table plane known, a block whose polygon got no pose or one with a residual over
+# SPLIT_FACE_MAX_RESIDUAL_PX, or whose polygon's mean side is under SILHOUETTE_MAX_SIDE_PX (px) and its pose misses
+# the table's height by more than three of its stds, is posed from its silhouette on the table
 # (``silhouette.fit_on_table``) when that fit overlaps its blob's outline by at least SILHOUETTE_MIN_OVERLAP
 # (intersection over union): a 15-30 px polygon's size fixes its depth to centimetres only, the table to millimetres
 # (docs/perception.md, "A small block's pose from its silhouette on the table").

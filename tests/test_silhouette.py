@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from baxter_pnp import models, perception, silhouette, vision
+from baxter_pnp import models, perception, pose, silhouette, vision
 from baxter_pnp.bench import perception_bench
 from baxter_pnp.bench import render_independent as r2
 from baxter_pnp.camera import load_default_camera
@@ -111,3 +111,20 @@ def test_far_dice_are_posed_on_the_table_by_their_silhouette():
     assert np.median(silhouette_errors) < 0.0015 and max(silhouette_errors) < 0.003, silhouette_errors
     assert np.median(polygon_errors) > 0.008, polygon_errors
     assert close_methods and set(close_methods) == {'sqp'}
+
+
+def test_a_silhouette_pose_says_so_in_its_json_and_on_the_debug_image():
+    """``BlockObservation.to_json`` names what posed the block; the debug image marks a silhouette pose."""
+    model = models.model_for('square', 0.02, 0.02)
+    T = block_on(TABLE, model, 0.01, 0.0, 0.2)
+    vertices = CAMERA.project(model.vertices @ T[:3, :3].T + T[:3, 3])
+    detection = vision.Detection('square', 'green', vertices, vertices.mean(axis=0), 400.0, 1.0, False,
+                                 np.round(vertices).astype(np.int32).reshape(-1, 1, 2))
+    image = np.full((CAMERA.height, CAMERA.width, 3), 128, np.uint8)
+    by = {}
+    for method in ('sqp', 'silhouette'):
+        observation = perception.BlockObservation(detection, pose.PoseEstimate(T, 0.5, method))
+        assert observation.to_json()['method'] == method
+        by[method] = perception.annotate(image, [observation], CAMERA)
+    assert perception.BlockObservation(detection, None, 'no pose').to_json()['method'] is None
+    assert not np.array_equal(by['sqp'], by['silhouette'])

@@ -36,7 +36,8 @@ class BlockObservation:
     error: Optional[str] = None
 
     def to_json(self):
-        """JSON-ready dict (pixels, metres, quaternion x y z w); pose fields are None on failure."""
+        """JSON-ready dict (pixels, metres, quaternion x y z w; ``method``: what posed it, e.g. ``sqp`` or
+        ``silhouette``); pose fields are None on failure."""
         d = self.detection
         estimate = self.pose
         return {
@@ -48,6 +49,7 @@ class BlockObservation:
             'orientation_xyzw': None if estimate is None else np.round(estimate.quaternion_xyzw, 6).tolist(),
             'depth_m': None if estimate is None else round(float(estimate.depth_m), 6),
             'residual_px': None if estimate is None else round(float(estimate.residual_px), 4),
+            'method': None if estimate is None else estimate.method,
             'error': self.error,
         }
 
@@ -162,7 +164,8 @@ def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, he
 
 
 def annotate(image_bgr, observations, camera, axis_length=0.02):
-    """Copy of the image with each block's contour, vertices, pose axes (m) and depth drawn on it."""
+    """Copy of the image with each block's contour, vertices, pose axes (m) and depth drawn on it (marked when the
+    pose came from the block's silhouette on the table)."""
     canvas = vision.draw_detections(image_bgr, [o.detection for o in observations])
     for observation in observations:
         estimate = observation.pose
@@ -172,6 +175,7 @@ def annotate(image_bgr, observations, camera, axis_length=0.02):
         tvec = estimate.T_camera_object[:3, 3].reshape(3, 1)
         cv2.drawFrameAxes(canvas, camera.K, camera.D, rvec, tvec, axis_length, 2)
         u, v = (int(round(c)) for c in observation.detection.centroid_px)
-        cv2.putText(canvas, 'Z=%.1f mm' % (1000.0 * estimate.depth_m), (u + 8, v + 22),
+        label = 'Z=%.1f mm%s' % (1000.0 * estimate.depth_m, ' (silhouette)' if estimate.method == 'silhouette' else '')
+        cv2.putText(canvas, label, (u + 8, v + 22),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 255), 1, cv2.LINE_AA)
     return canvas

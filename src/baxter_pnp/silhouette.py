@@ -87,11 +87,20 @@ class _Problem:
         along = self.normal @ ray
         distance = (plane.offset + 0.5 * model.height) / along if along != 0.0 else -1.0
         self.start = ray * distance + 0.5 * model.height * self.normal if distance > 0 else None
-        self.plane_xy = model.vertices[:, :2]                             # block frame, z = 0
-        middles = 0.5 * (self.plane_xy + np.roll(self.plane_xy, -1, axis=0))
-        self.face_normals = middles / np.linalg.norm(middles, axis=1, keepdims=True)     # side face k: k -> k + 1
+        # a block-frame point (px, py, 0) at yaw t lies at centre + cos t (px e1 + py e2) + sin t (px e2 - py e1):
+        # the vertices' and the side faces' (centres, outward normals) cosine and sine parts, computed once
+        plane_xy = model.vertices[:, :2]
+        middles = 0.5 * (plane_xy + np.roll(plane_xy, -1, axis=0))              # side face k: vertex k -> k + 1
+        self._vertex_parts = self._parts(plane_xy)
+        self._middle_parts = self._parts(middles)
+        self._normal_parts = self._parts(middles / np.linalg.norm(middles, axis=1, keepdims=True))
         self.drop = model.height * self.normal
         self._subsets = {}
+
+    def _parts(self, xy):
+        """(cosine part, sine part), each (k, 3), of block-frame points ``xy`` (k, 2) on the top face's plane."""
+        return (np.outer(xy[:, 0], self.e1) + np.outer(xy[:, 1], self.e2),
+                np.outer(xy[:, 0], self.e2) - np.outer(xy[:, 1], self.e1))
 
     def pose(self, params):
         """(R, top-face centre) of the parameters."""
@@ -102,21 +111,24 @@ class _Problem:
 
     def hulls(self, params):
         """The hulls (ideal px, float32) of the top face with each subset of the side faces that face the camera."""
-        R, centre = self.pose(params)
-        top = self.plane_xy @ R[:, :2].T + centre
+        u, v, yaw = params
+        c, s = math.cos(yaw), math.sin(yaw)
+        centre = self.start + u * self.e1 + v * self.e2
+        top = centre + c * self._vertex_parts[0] + s * self._vertex_parts[1]
         points = np.concatenate([top, top - self.drop])
         if points[:, 2].min() <= 1e-6:
             return []
         pixels = (points[:, :2] / points[:, 2:] * self.focal + self.principal).astype(np.float32)
-        middles = 0.5 * (top + np.roll(top, -1, axis=0)) - 0.5 * self.drop      # side faces' centres
-        facing = np.einsum('ij,ij->i', self.face_normals @ R[:, :2].T, middles) < 0.0      # towards the origin
+        middles = centre - 0.5 * self.drop + c * self._middle_parts[0] + s * self._middle_parts[1]
+        normals = c * self._normal_parts[0] + s * self._normal_parts[1]
+        facing = (normals * middles).sum(axis=1) < 0.0             # the side faces turned to the camera (the origin)
         return [cv2.convexHull(pixels[index]) for index in self._subset_indices(tuple(np.flatnonzero(facing)))]
 
     def _subset_indices(self, visible):
         """Per subset of the side faces ``visible``: the indices of its hull's points (top, then bottom vertices)."""
         if visible not in self._subsets:
             n = self.model.n
-            self._subsets[visible] = [list(range(n)) + [n + j for k in faces for j in (k, (k + 1) % n)]
+            self._subsets[visible] = [np.array(list(range(n)) + [n + j for k in faces for j in (k, (k + 1) % n)])
                                       for count in range(len(visible) + 1)
                                       for faces in itertools.combinations(visible, count)]
         return self._subsets[visible]

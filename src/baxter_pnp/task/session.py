@@ -106,8 +106,9 @@ class RobotSession:
                          'the plane of %s' % c.hand_eye if c.table_calibrated() else 'table_top_z'))
         self.safety = ArmSafety.for_arm(self.kinematics, table_top_z=c.table_top_z, table_plane=self.table,
                                         tip_margin=c.tip_margin)
-        self.limb = robot.Limb(c.side, self.safety, max_age=c.stream_max_age)
-        self.gripper = robot.Gripper(c.side, max_age=c.stream_max_age)
+        # the same wait for the first state and for the command topics' subscribers (a loaded machine)
+        self.limb = robot.Limb(c.side, self.safety, timeout=c.robot_wait_timeout, max_age=c.stream_max_age)
+        self.gripper = robot.Gripper(c.side, timeout=c.robot_wait_timeout, max_age=c.stream_max_age)
         self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
         if c.camera_calibration:
             self.camera_override = c.calibrated_camera()

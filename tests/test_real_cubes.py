@@ -73,14 +73,21 @@ KNOWN_POSE_FAILURES = {
     'c4-08': 'a red square whose left corner lies on the side face (the outline keeps part of the side face on its '
              'left: 1494 px^2 for a ~1230 px^2 face): a projected corner 6.6 px from the labelled one',
 }
-# Photos with false square detections: the reason. (Flat bricks fitted with a square model tilt it 19-63 deg from the
+# Posed squares on no labelled cube and no ignore entry that the current pipeline returns, per photo: (colour, (u, v)
+# px of the detection's centroid, within FALSE_MATCH_PX)) -> why. Any other one fails the test, and so does a listed
+# one that is no longer there (remove it here). (Flat bricks fitted with a square model tilt it 19-63 deg from the
 # board: the table-plane prior refuses them, pose.MAX_TILT_FROM_TABLE_RAD.)
 KNOWN_FALSE_DETECTIONS = {
-    'cubes_1.png': '2 yellow ends of cylinders lying on their side, at (318, 206) and (917, 399), 22-27 px: seen from '
-                   'above, the yellow part is a quadrilateral with one curved side (a residual of 1.2 and 4.3 px). '
-                   'Their shading ramps across the curved surface, which top-face isolation splits like a face '
-                   'edge; it keeps the whole part as one face',
+    'cubes_1.png': {
+        ('yellow', (318.5, 205.7)): 'the yellow end of a cylinder lying on its side, 22-27 px: seen from above a '
+                                    'quadrilateral with one curved side; its shading ramps across the curved surface, '
+                                    'which top-face isolation splits like a face edge, keeping the whole part as one',
+        ('yellow', (916.2, 396.3)): 'the other yellow cylinder end, as above',
+        ('green', (296.0, 211.0)): 'the green band of that cylinder, between two yellow ones: a rectangle from above',
+        ('yellow', (705.3, 31.1)): 'a yellow part under a black cable at the top border, on the wooden desk',
+    },
 }
+FALSE_MATCH_PX = 6.0
 
 
 def _cases(known):
@@ -186,26 +193,40 @@ def test_labelled_cube_is_posed_on_the_board(name, label):
 
 
 def _false_detections(name):
+    """Posed square detections (with either cube size's model) on no labelled cube and no ignore entry of ``name``,
+    one per place."""
     entry = LABELS['images'][name]
     false = []
-    for observation in _observations(name, 'large'):
-        if observation.pose is None:
-            continue
-        centre = observation.detection.centroid_px
-        if any(_distance(centre, label['centre']) <= label['side_px'] / 2 for label in entry['cubes']):
-            continue
-        if any(_distance(centre, ignore['centre']) <= ignore['radius_px'] for ignore in entry.get('ignore') or ()):
-            continue
-        false.append(observation.detection)
+    for size in SIDE_M:
+        for observation in _observations(name, size):
+            if observation.pose is None:
+                continue
+            centre = observation.detection.centroid_px
+            if any(_distance(centre, label['centre']) <= label['side_px'] / 2 for label in entry['cubes']):
+                continue
+            if any(_distance(centre, ignore['centre']) <= ignore['radius_px'] for ignore in entry.get('ignore') or ()):
+                continue
+            if not any(_distance(centre, d.centroid_px) <= FALSE_MATCH_PX for d in false):
+                false.append(observation.detection)
     return false
 
 
-@pytest.mark.parametrize('name', [pytest.param(name, id=name, marks=(
-    pytest.mark.xfail(strict=True, reason=KNOWN_FALSE_DETECTIONS[name]) if name in KNOWN_FALSE_DETECTIONS else ()))
-    for name in LABELS['images']])
+@pytest.mark.parametrize('name', list(LABELS['images']))
 def test_no_false_square_detections(name):
-    """Posed square detections (any colour) that are on no labelled cube and no ignore entry: none."""
+    """Posed square detections (any colour) on no labelled cube and no ignore entry: none but the known ones of
+    ``KNOWN_FALSE_DETECTIONS`` (an xfail while they are there), and every known one still there."""
+    known = KNOWN_FALSE_DETECTIONS.get(name, {})
+
+    def is_known(detection, key):
+        colour, centre = key
+        return detection.colour == colour and _distance(detection.centroid_px, centre) <= FALSE_MATCH_PX
+
     false = _false_detections(name)
-    assert not false, f'{name}: {len(false)} false square detections: ' + '; '.join(
+    new = [d for d in false if not any(is_known(d, key) for key in known)]
+    assert not new, f'{name}: {len(new)} false square detections: ' + '; '.join(
         f'{d.colour} {d.shape} at ({d.centroid_px[0]:.0f}, {d.centroid_px[1]:.0f}), area {d.area_px:.0f} px^2'
-        for d in false)
+        for d in new)
+    gone = [key for key in known if not any(is_known(d, key) for d in false)]
+    assert not gone, f'{name}: no longer detected (remove them from KNOWN_FALSE_DETECTIONS): {gone}'
+    if known:
+        pytest.xfail('; '.join(f'{colour} at {centre}: {why}' for (colour, centre), why in known.items()))

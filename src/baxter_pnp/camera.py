@@ -25,6 +25,7 @@ from baxter_pnp.runtime import PACKAGE_ROOT
 
 DEFAULT_CAMERA_YAML = os.path.join(PACKAGE_ROOT, 'config', 'left_hand_camera.yaml')
 DISTORTION_MODEL = 'plumb_bob'
+FOCAL_RANGE_PX = (1.0, 1e6)     # focal lengths outside this are a broken calibration, not a camera
 # Iterative undistortion: OpenCV's default stops after 5 iterations (~1e-3 px); 40 converge to 1e-12 px for
 # lenses up to k1 = -0.3 at the image corner. A count only: an EPS criterion makes OpenCV reproject every point at
 # every iteration (20x the time of the iterations themselves, 55 us for a polygon's 6 vertices).
@@ -52,8 +53,15 @@ class CameraModel:
                              f'D={self.D.tolist()}')
         if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):
             raise ValueError(f'camera_matrix: focal lengths must be positive, got fx={self.K[0, 0]}, fy={self.K[1, 1]}')
+        if not (FOCAL_RANGE_PX[0] <= min(self.K[0, 0], self.K[1, 1])
+                and max(self.K[0, 0], self.K[1, 1]) <= FOCAL_RANGE_PX[1]):
+            raise ValueError(f'camera_matrix: focal lengths fx={self.K[0, 0]}, fy={self.K[1, 1]} px are no camera\'s '
+                             f'({FOCAL_RANGE_PX[0]:g} to {FOCAL_RANGE_PX[1]:g} px)')
         if not np.allclose(self.K[2], [0.0, 0.0, 1.0]):
             raise ValueError(f'camera_matrix: last row must be [0, 0, 1], got {self.K[2].tolist()}')
+        if self.K[1, 0] != 0.0:
+            raise ValueError(f'camera_matrix: must be upper triangular ([fx, s, cx], [0, fy, cy], [0, 0, 1]), got '
+                             f'{self.K[1, 0]} under fx')
 
     @property
     def fx(self):
@@ -133,9 +141,9 @@ class CameraModel:
             raise ValueError(f'camera YAML: distortion_model {model!r} is not supported (only {DISTORTION_MODEL!r})')
         K = _matrix_field(d, 'camera_matrix', 3, 3)
         D = _matrix_field(d, 'distortion_coefficients', 1, 5)
-        for key, rows, cols in (('rectification_matrix', 3, 3), ('projection_matrix', 3, 4)):
-            if key in d:
-                _matrix_field(d, key, rows, cols)
+        _check_rectification(*(_matrix_field(d, key, rows, cols) if key in d else np.zeros((rows, cols)) for key, rows, cols
+                               in (('rectification_matrix', 3, 3), ('projection_matrix', 3, 4))),
+                             'camera YAML: rectification_matrix', 'camera YAML: projection_matrix')
         if K[0, 0] == 0 or K[1, 1] == 0:
             raise ValueError(f'camera YAML: camera_matrix has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
         width = _integer_field(d['image_width'], 'camera YAML: image_width')    # > 0: checked by the model
@@ -193,7 +201,8 @@ class CameraModel:
         point ``(c - roi offset) / binning``, focal lengths / binning (a Baxter hand camera at 640x400 sends
         the full-sensor K with roi offset (320, 200)). An empty ``D`` means no distortion; a leading ``/`` of
         ``frame_id`` is dropped (tf2 frame names have none). ValueError naming the bad field: non-finite ``K``,
-        ``D``, ``R`` or ``P``, a non-positive focal length, or an ROI larger than the sensor (``roi`` size over
+        ``D``, ``R`` or ``P``, an ``R`` that is no rotation, a ``P`` or ``K`` focal length that is not positive (``K``'s
+        also outside ``FOCAL_RANGE_PX``), a ``K`` that is not upper triangular, or an ROI larger than the sensor (``roi`` size over
         ``width`` x ``height`` times binning: the message's size is the sensor's by the message definition, the
         delivered image's as Baxter sends it; both satisfy this bound).
         """
@@ -208,6 +217,7 @@ class CameraModel:
             values = getattr(msg, key)
             if len(values) != size or not np.all(np.isfinite(np.asarray(values, dtype=float))):
                 raise ValueError(f'CameraInfo: {key} must be {size} finite numbers, got {list(values)}')
+        _check_rectification(np.reshape(msg.R, (3, 3)), np.reshape(msg.P, (3, 4)), 'CameraInfo: R', 'CameraInfo: P')
         K = np.array(msg.K, dtype=float).reshape(3, 3)
         D = np.array(msg.D, dtype=float) if len(msg.D) else np.zeros(5)
         binning_x, binning_y = max(1, int(msg.binning_x)), max(1, int(msg.binning_y))
@@ -350,6 +360,19 @@ def _integer_field(value, what, minimum=None):
 def load_default_camera():
     """The left hand camera of the thesis calibration (eq. 3.10-3.12), 640x480: ``config/left_hand_camera.yaml``."""
     return CameraModel.from_yaml(DEFAULT_CAMERA_YAML)
+
+
+def _check_rectification(R, P, r_name, p_name):
+    """ValueError naming ``r_name`` / ``p_name`` unless the rectification ``R`` (3x3) is a rotation and the projection
+    ``P`` (3x4) has positive focal lengths and a last row [0, 0, 1, Tz]; all zeros is neither given (an
+    uncalibrated camera's, or a field left out), as ``image_geometry`` cannot use it either. The model works on
+    raw images and uses neither, but a message that breaks them is no calibration to trust."""
+    R, P = np.asarray(R, dtype=float), np.asarray(P, dtype=float)
+    if np.any(R) and not (np.allclose(R @ R.T, np.eye(3), atol=1e-3) and np.linalg.det(R) > 0):
+        raise ValueError(f'{r_name} must be a rotation (or all zeros), got {R.ravel().tolist()}')
+    if np.any(P) and not (P[0, 0] > 0 and P[1, 1] > 0 and np.allclose(P[2, :3], [0.0, 0.0, 1.0])):
+        raise ValueError(f'{p_name}: focal lengths must be positive and the last row [0, 0, 1, Tz], got '
+                         f'{P.ravel().tolist()}')
 
 
 def _matrix_field(d, key, rows, cols):

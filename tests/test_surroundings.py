@@ -139,9 +139,18 @@ def test_real_frames_under_a_glow_or_a_cast(config, variant, most, least_without
 
 @pytest.mark.skipif(not os.path.isdir(REAL), reason=f'no real images at {REAL}')
 def test_real_frames_under_every_photometric_change(config):
-    """All ten changes of ``bench/photometric.py`` and the frames as taken: 20 false detections in all (123 with
-    session 17's pipeline; README, "One exposure step away"), none as taken; 12 of the 20 are the e-stop's red cap."""
+    """The changes of ``bench/photometric.py`` and the frames as taken: none as taken; 19 false detections under the
+    ten changes of a camera, exposure or lab (123 with session 17's pipeline; README, "One exposure step away"), 12
+    of them the e-stop's red cap; under a second JPEG round trip or sensor noise (two frames of one scene differ so
+    much) 5, every one the e-stop's red button, a 15-30 px disc at the edge of the disc test."""
     photometric = pytest.importorskip('baxter_pnp.bench.photometric')
     found = photometric.false_detections(photometric.real_negative_frames(REAL), config)
     assert found['as taken'] == []
-    assert sum(len(detections) for detections in found.values()) <= 20, found
+    frame_to_frame = ('JPEG again (q 80)', 'sensor noise (sigma 2)')
+    assert sum(len(found[variant]) for variant in found if variant not in frame_to_frame) <= 20, found
+    e_stop = {'baxter_image_%s.jpg' % frame: centre for frame, centre in (
+        ('1160', (364, 344)), ('220', (241, 392)), ('310', (574, 392)), ('680', (311, 394)))}
+    flicker = [d for variant in frame_to_frame for d in found[variant]]
+    assert len(flicker) <= 5 and all(colour == 'red' and os.path.basename(name) in e_stop
+                                     and np.hypot(*np.subtract(centre, e_stop[os.path.basename(name)])) < 6
+                                     for name, colour, _, centre in flicker), flicker

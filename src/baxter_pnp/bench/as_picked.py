@@ -18,6 +18,14 @@ from baxter_pnp.models import Plane
 from baxter_pnp.task import target
 
 
+def true_table_plane(T_camera_block, height):
+    """The table-top plane (the bottom face of a block ``height`` m tall) in the camera frame, normal towards
+    the block's top."""
+    normal = T_camera_block[:3, 2]
+    bottom_centre = T_camera_block[:3, 3] - height * normal
+    return Plane(normal, float(normal @ bottom_centre))
+
+
 def base_of_table(table_plane_camera):
     """``(T_base_camera, table)``: a base frame whose z axis is the camera-frame ``table_plane_camera``'s normal,
     and the table top in it (level, at its offset): what the robot knows from forward kinematics."""

@@ -35,7 +35,8 @@ import numpy as np
 
 from baxter_pnp import camera as camera_module
 from baxter_pnp import models, pick, pose, synthetic, vision
-from baxter_pnp.bench import as_picked, photometric, render_independent
+from baxter_pnp.bench import as_picked, composite, photometric, render_independent
+from baxter_pnp.bench.as_picked import true_table_plane
 from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.transforms import make_transform
 
@@ -157,14 +158,6 @@ def orientation_error_deg(R_true, R_est, symmetry_angle):
         angle = Rotation.from_matrix(R_est.T @ R_true @ R_sym).magnitude()
         best = min(best, angle)
     return float(np.degrees(best))
-
-
-def true_table_plane(T_camera_block, height):
-    """The table-top plane (the bottom face of a block ``height`` m tall) in the camera frame, normal towards
-    the block's top."""
-    normal = T_camera_block[:3, 2]
-    bottom_centre = T_camera_block[:3, 3] - height * normal
-    return models.Plane(normal, float(normal @ bottom_centre))
 
 
 def run_dataset(kind, samples, camera, config, seed, crops=None, estimators=ESTIMATORS):
@@ -315,6 +308,21 @@ def measure_photometric(kinds, count, seed, camera, config, real_dir):
         blocks[kind] = photometric.blocks_found(make_dataset(kind, count, frame_seed, camera), camera, config,
                                                 np.random.default_rng(frame_seed + 1))
     return photometric.false_detections(frames, config), len(frames), blocks
+
+
+COMPOSITE_SEED_OFFSET = 110                  # measure_composites' frames' seeds: their own
+
+
+def measure_composites(kinds, count, seed, config, real_dir):
+    """Per independent-renderer dataset of ``kinds``: ``count`` of its blocks put into the real hand-camera frames of
+    ``real_dir`` (``composite.measure``'s rows; [] without the frames). Poses drawn for the real camera (640x400)."""
+    backgrounds = composite.real_backgrounds(real_dir)
+    rows = []
+    for kind in [k for k in kinds if k in R2_DATASETS] if backgrounds else []:
+        frame_seed = set_seed(kind, seed) + COMPOSITE_SEED_OFFSET
+        samples = make_dataset(kind, count, frame_seed, backgrounds[0][2])
+        rows.append(composite.measure(kind, samples, backgrounds, config, np.random.default_rng(frame_seed + 1)))
+    return rows
 
 
 BORDER_CUT_FRACTIONS = (0.15, 0.30, 0.50)    # measure_border_cuts: share of the block's extent cut off
@@ -540,6 +548,9 @@ def main(argv=None):
     parser.add_argument('--as-picked-frames', type=int, default=150, metavar='N',
                         help='frames of each _r2 set looked at as a pick looks (observe_blocks with the table plane '
                              'and the pick\'s belief rules; bench/as_picked.py; default 150, 0: no table)')
+    parser.add_argument('--composite-frames', type=int, default=150, metavar='N',
+                        help='blocks of each _r2 set put into the real hand-camera frames (--real) where these show '
+                             'a bare table or floor (bench/composite.py; default 150, 0: no table)')
     parser.add_argument('--real', default=REAL_DEFAULT, metavar='DIR',
                         help='the real images (default ../shared/real beside the repository, or '
                              '$BAXTER_PNP_REAL_DATA); their blockless frames are counted when present')
@@ -601,10 +612,16 @@ def main(argv=None):
             json.dump(picked, f, indent=1)
         print('\nas a pick looks (observe_blocks with the true table plane and edge radius, the pick\'s belief rules)'
               '\n\n%s' % as_picked.format_as_picked(picked))
+    if args.composite_frames > 0 and any(kind in R2_DATASETS for kind in args.datasets):
+        composites = measure_composites(args.datasets, args.composite_frames, args.seed, config, args.real)
+        with open(os.path.join(args.out, 'composites.json'), 'w') as f:
+            json.dump(composites, f, indent=1)
+        print('\nblocks put into real hand-camera frames%s\n\n%s' % (
+            '' if composites else ': no frames at %s' % args.real, composite.format_table(composites)))
     if args.worst:
         directory = args.worst_dir or os.path.join(args.out, 'worst')
         save_worst(rows, crops, directory, args.worst)
         print('\n(the %d worst and missed frames: %s/, listed in worst.tsv)' % (args.worst, directory))
     print('\n(per-frame results: %s/frames.csv; summary: %s/summary.json, latency.json, border_cuts.json, '
-          'photometric.json, seed_spread.json, as_picked.json)' % (args.out, args.out))
+          'photometric.json, seed_spread.json, as_picked.json, composites.json)' % (args.out, args.out))
     return 0

@@ -2,9 +2,10 @@
 (``../shared/real``: the Baxter lab frames, the blue-tinted chessboard frames and the printed shapes), the real
 cubes labelled in ``tests/data/real_labels.yaml`` and the independent renderer's blocks, each under the changes
 another camera, exposure or lab brings: exposure, a colour cast, gamma, vignetting, a coloured glow in an image
-corner, saturation. Counted: what the vision finds on the blockless frames (all of it is false) and how many
-blocks it still finds. A detector tuned on a few real frames can be right on them and wrong one exposure step away
-(docs/perception.md, "Fragments of larger coloured areas").
+corner, saturation; and what differs between two frames of one scene: a second JPEG round trip, sensor noise.
+Counted: what the vision finds on the blockless frames (all of it is false) and how many blocks it still finds.
+A detector tuned on a few real frames can be right on them and wrong one exposure step away (docs/perception.md,
+"Fragments of larger coloured areas").
 
 Images are BGR uint8 in and out; every change is deterministic."""
 import glob
@@ -48,6 +49,16 @@ def _corner_glow(image):
     return np.clip(image + glow[..., None] * np.asarray(GLOW_BGR), 0, 255).astype(np.uint8)
 
 
+def _jpeg_again(image, quality):
+    _, buffer = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    return cv2.imdecode(buffer, cv2.IMREAD_COLOR)
+
+
+def _sensor_noise(image, sigma):
+    noise = np.random.default_rng(0).normal(0.0, sigma, image.shape)       # the same noise each time: deterministic
+    return np.clip(image + noise, 0, 255).astype(np.uint8)
+
+
 def _saturation(image, factor):
     hsv = cv2.cvtColor(image, cv2.COLOR_BGR2HSV).astype(np.float32)
     hsv[..., 1] *= factor
@@ -66,6 +77,8 @@ VARIANTS = {
     'vignetting 0.5': lambda image: _vignetting(image, 0.5),
     'red glow in a corner': _corner_glow,
     'saturation x1.5': lambda image: _saturation(image, 1.5),
+    'JPEG again (q 80)': lambda image: _jpeg_again(image, 80),
+    'sensor noise (sigma 2)': lambda image: _sensor_noise(image, 2.0),
 }
 
 

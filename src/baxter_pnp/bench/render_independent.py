@@ -151,16 +151,45 @@ def render_scene(camera, blocks, rng, look=None, supersample=SUPERSAMPLE):
     ``T_camera_block`` (4x4), ``visible`` (top face towards the camera, corners inside the image, not hidden).
     """
     look = random_look(rng) if look is None else look
-    if not blocks:
-        raise ValueError('render_scene: no blocks to draw')
-    T_camera_table = np.array(blocks[0][1], dtype=float)
-    T_camera_table[:3, 3] -= blocks[0][0].height * T_camera_table[:3, 2]
-    light_cam = T_camera_table[:3, :3] @ _light_direction(look)
+    light_cam = _light_in_camera(blocks, look)
     image = _table(camera, look, rng)
     image *= _shadow_factor(camera, blocks, light_cam, look)[..., None]
-    order = sorted(range(len(blocks)), key=lambda i: -np.linalg.norm(blocks[i][1][:3, 3]))
-    coverage = _draw_blocks(image, camera, [(i, *blocks[i]) for i in order], light_cam, look, supersample, rng)
+    coverage = _draw_blocks(image, camera, _far_first(blocks), light_cam, look, supersample, rng)
     image = _camera_effects(image * _vignetting(camera.width, camera.height, look.vignetting)[..., None], look, rng)
+    return image, _truths(camera, blocks, coverage)
+
+
+def render_layers(camera, blocks, rng, look=None, supersample=SUPERSAMPLE):
+    """The ``blocks`` of ``render_scene`` as layers to put into a picture of a real table (``bench.composite``):
+    ``(colour, alpha, shadow, table_bgr, truths)``. ``colour`` (H, W, 3) float32: the blocks' radiance, premultiplied by
+    their coverage ``alpha`` (H, W, 0-1); ``shadow`` (H, W): the table's gains in their shadows; ``table_bgr`` (3,):
+    the radiance of the table ``look`` describes (its mottling left out), the scale the colours are on. No camera
+    effect (blur, noise, JPEG: the composite's own)."""
+    look = random_look(rng) if look is None else look
+    light_cam = _light_in_camera(blocks, look)
+    h, w = camera.height, camera.width
+    colour, alpha = np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
+    coverage = _draw_blocks(colour, camera, _far_first(blocks), light_cam, look, supersample, rng, alpha)
+    table_bgr = _table_radiance(look)
+    return colour, alpha, _shadow_factor(camera, blocks, light_cam, look), table_bgr, _truths(camera, blocks, coverage)
+
+
+def _light_in_camera(blocks, look):
+    """The direction towards ``look``'s light in the camera frame; ValueError without blocks (the table is the first
+    block's bottom plane)."""
+    if not blocks:
+        raise ValueError('render_scene: no blocks to draw')
+    return np.asarray(blocks[0][1], dtype=float)[:3, :3] @ _light_direction(look)
+
+
+def _far_first(blocks):
+    """``[(index, Block, T_camera_block)]`` of ``blocks``, the farthest first (painter's order)."""
+    order = sorted(range(len(blocks)), key=lambda i: -np.linalg.norm(blocks[i][1][:3, 3]))
+    return [(i, *blocks[i]) for i in order]
+
+
+def _truths(camera, blocks, coverage):
+    """``render_scene``'s ground truth of ``blocks`` (``coverage``: ``_draw_blocks``'s)."""
     truths = []
     for i, (block, T_camera_block) in enumerate(blocks):
         vertices_px = camera.project(_transform(T_camera_block, block.model.vertices))
@@ -169,7 +198,7 @@ def render_scene(camera, blocks, rng, look=None, supersample=SUPERSAMPLE):
         truths.append({'vertices_px': vertices_px, 'centroid_px': camera.project(T_camera_block[:3, 3])[0],
                        'T_camera_block': np.array(T_camera_block, dtype=float),
                        'visible': bool(top_facing and inside and drawn > 0 and seen >= 0.995 * drawn)})
-    return image, truths
+    return truths
 
 
 # ------------------------------------------------------------------------------------------------ geometry
@@ -317,8 +346,9 @@ def _twice_area(points):
     return float(np.dot(x[:-1], y[1:]) - np.dot(x[1:], y[:-1]) + x[-1] * y[0] - x[0] * y[-1])
 
 
-def _draw_blocks(image, camera, blocks, light_cam, look, supersample, rng):
-    """Composite ``blocks`` = ``[(index, Block, T_camera_block)]`` (far first) over ``image`` (float32, in place).
+def _draw_blocks(image, camera, blocks, light_cam, look, supersample, rng, alpha_image=None):
+    """Composite ``blocks`` = ``[(index, Block, T_camera_block)]`` (far first) over ``image`` (float32, in place);
+    their coverage (0-1) also into ``alpha_image`` (H, W float32, in place) when given.
 
     Returns ``{index: (top face towards the camera, canvas pixels of its top face drawn, still showing at the end)}``.
     """
@@ -381,6 +411,8 @@ def _draw_blocks(image, camera, blocks, light_cam, look, supersample, rng):
     region = image[y0:y1, x0:x1]
     region *= 1.0 - alpha[..., None]
     region += colour
+    if alpha_image is not None:
+        alpha_image[y0:y1, x0:x1] = 1.0 - (1.0 - alpha_image[y0:y1, x0:x1]) * (1.0 - alpha)
     for index, block, T, polygons, _ in drawable:
         if index in drawn and (block.marks.grain or block.marks.glare):
             top_alpha = cv2.resize((labels == 2 * index + 1).astype(np.float32), size, interpolation=cv2.INTER_AREA)
@@ -434,9 +466,8 @@ def _normalised_rays(camera):
 def _table(camera, look, rng):
     """Float32 BGR table: a dim grey, slightly tinted, mottled at two scales, lit like a face towards +z."""
     h, w = camera.height, camera.width
-    lit = look.exposure * look.table_grey * (look.ambient + look.diffuse * math.sin(look.light_elevation))
     image = np.empty((h, w, 3), np.float32)
-    image[:] = lit * np.asarray(look.table_tint, dtype=np.float32)
+    image[:] = _table_radiance(look)
     if look.table_texture:
         # mottling (standard deviation ``table_texture``): broad grey patches with a faint tint, a fine grain
         coarse = rng.normal(size=(6, 8, 1)) + 0.25 * rng.normal(size=(6, 8, 3))
@@ -445,6 +476,12 @@ def _table(camera, look, rng):
                           interpolation=cv2.INTER_LINEAR)
         image += look.table_texture * (coarse + 2.8 * fine[..., None]) / math.sqrt(2.0)
     return image
+
+
+def _table_radiance(look):
+    """(3,) float32 BGR radiance of ``look``'s table, unmottled, lit like a face towards +z."""
+    lit = look.exposure * look.table_grey * (look.ambient + look.diffuse * math.sin(look.light_elevation))
+    return (lit * np.asarray(look.table_tint, dtype=np.float32)).astype(np.float32)
 
 
 def _shadow_factor(camera, blocks, light_cam, look):

@@ -23,7 +23,8 @@ from baxter_pnp.models import model_for
 from baxter_pnp.msgs import msg, srv
 from baxter_pnp.robot.sdk import GRIPPER_PARAMETERS
 from baxter_pnp.ros_image import msg_to_bgr
-from baxter_pnp.sim.cameras import RESOLUTION_HALF_CONTROL, camera_settings_problem, parse_camera_option
+from baxter_pnp.sim.cameras import (RESOLUTION_HALF_CONTROL, camera_settings_problem, control_brightness,
+                                    parse_camera_option)
 from baxter_pnp.sim.world import FINGER_TRAVEL, GRIPPER_MAX_SPEED
 from baxter_pnp.transforms import invert, make_transform
 import fake_baxter_client
@@ -54,6 +55,17 @@ def test_camera_settings_and_option():
     for bad in ('left_hand_camera', 'left_hand_camera:640x480@20', 'left_hand_camera:640x400@0'):
         with pytest.raises(argparse.ArgumentTypeError):
             parse_camera_option(bad)
+
+
+def test_exposure_and_gain_controls_scale_the_brightness():
+    """The fake's model of baxter_interface's exposure (0-100) and gain (0-79) controls: automatic (-1) or absent
+    = 1; exposure / 50; x (1 + gain / 16); other controls ignored; out of range refused."""
+    assert control_brightness([]) == control_brightness([(100, -1), (101, -1), (RESOLUTION_HALF_CONTROL, 1)]) == 1.0
+    assert control_brightness([(100, 25)]) == pytest.approx(0.5)
+    assert control_brightness([(100, 100), (101, 16)]) == pytest.approx(4.0)
+    for bad in ([(100, 101)], [(101, 80)], [(100, -2)]):
+        with pytest.raises(ValueError, match='exposure|gain'):
+            control_brightness(bad)
 
 
 # ============================================================================ cameras
@@ -147,6 +159,34 @@ def test_camera_services_errors_and_two_open_limit(robot):
         for name in ('left_hand_camera', 'right_hand_camera', 'head_camera'):
             close_camera(name)
     assert close_camera('left_hand_camera').err == errno.EINVAL
+
+
+def test_a_camera_opened_with_an_exposure_sends_darker_frames(robot):
+    """Exposure 25 (the fake's automatic one amounts to 50) halves the frames' grey levels; exposure 101 or gain 80
+    are refused (EINVAL) and leave the camera as it was."""
+    open_camera = rospy.ServiceProxy('/cameras/open', srv.OpenCamera)
+    close_camera = rospy.ServiceProxy('/cameras/close', srv.CloseCamera)
+    images = Recorder('/cameras/left_hand_camera/image', Image, keep=20)
+    infos = Recorder('/cameras/left_hand_camera/camera_info', CameraInfo, keep=20)
+
+    def mean_grey(*controls):
+        opened_at = rospy.get_time()
+        settings = msg.CameraSettings(width=320, height=200, fps=10.0,
+                                      controls=[msg.CameraControl(id=i, value=v) for i, v in controls])
+        assert open_camera('left_hand_camera', settings).err == 0
+        sim_sleep(0.3)          # past the frames rendered before the new settings
+        image, _ = _frame_and_info(images, infos, 320, 1, opened_at + 0.25, 20.0)
+        return float(msg_to_bgr(image).mean())
+    try:
+        automatic, darker = mean_grey(), mean_grey((100, 25))
+        assert darker / automatic == pytest.approx(0.5, abs=0.05), (automatic, darker)
+        for control in ((100, 101), (101, 80)):
+            settings = msg.CameraSettings(width=320, height=200, fps=10.0, controls=[msg.CameraControl(*control)])
+            assert open_camera('left_hand_camera', settings).err == errno.EINVAL
+    finally:
+        images.close()
+        infos.close()
+        close_camera('left_hand_camera')
 
 
 # ============================================================================ range sensor

@@ -19,6 +19,7 @@ from baxter_pnp.kinematics import ArmKinematics
 from baxter_pnp.msgs import msg
 from baxter_pnp.robot import (Gripper, HandCamera, IKFailure, Limb, RobotEnable, RobotTimeout, ServiceUnavailable,
                               StreamLost, hand_eye_transform)
+from baxter_pnp.robot.camera import camera_controls
 from baxter_pnp.robot.limb import _arm_joint_state, _endpoint_state
 from baxter_pnp.ros_image import bgr_to_msg
 from baxter_pnp.safety import ArmSafety, UnsafeCommand
@@ -199,6 +200,18 @@ def test_hand_eye_falls_back_to_the_urdf_without_tf(ros_node):
     np.testing.assert_allclose(hand_eye.T_hand_camera, T_HAND_CAMERA_URDF, atol=1e-6)
     # The sim gripper tip is 0.1577 m along the hand's z axis.
     np.testing.assert_allclose(hand_eye.T_gripper_camera[:3, 3], (0.03825, 0.012, 0.015355 - 0.1577), atol=1e-6)
+
+
+def test_camera_controls_are_checked_before_the_robot_is_asked():
+    """Exposure 0-100 and gain 0-79 (baxter_interface's ranges) as CameraControl (id, value); automatic (-1) sends
+    none, so the robot keeps its own; anything else is a ValueError."""
+    assert camera_controls(80, 0) == [(100, 80), (101, 0)]
+    assert camera_controls() == camera_controls(-1, -1) == []
+    for exposure, gain in ((101, -1), (-1, 80), (-2, -1), (True, -1), (50.0, -1)):
+        with pytest.raises(ValueError, match='exposure|gain'):
+            camera_controls(exposure, gain)
+    with pytest.raises(ValueError, match='gain'):
+        HandCamera('left', gain=100)
 
 
 def test_camera_frames_are_validated(ros_node):

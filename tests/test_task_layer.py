@@ -192,9 +192,12 @@ def test_one_yaml_splits_into_the_task_and_the_session_with_precedence(tmp_path)
     assert isinstance(session, SessionConfig) and not hasattr(task, 'cycles')
     for values, key in (({'cycles': 0}, 'cycles'), ({'side': 'middle'}, 'side'), ({'fps': 'fast'}, 'fps'),
                         ({'speed_ratio': 1.5}, 'speed_ratio'), ({'save_views': 'yes'}, 'save_views'),
-                        ({'stepfraction': 0.1}, 'stepfraction')):
+                        ({'stepfraction': 0.1}, 'stepfraction'), ({'camera_exposure': 101}, 'camera_exposure'),
+                        ({'camera_gain': -2}, 'camera_gain'), ({'camera_gain': 'auto'}, 'camera_gain')):
         with pytest.raises(ParameterError, match=key):
             load_configs(pick.PickConfig, None, values)
+    _, session = load_configs(pick.PickConfig, None, {'camera_exposure': 80, 'camera_gain': 0})
+    assert (session.camera_exposure, session.camera_gain) == (80, 0)
 
 
 def test_a_camera_calibration_is_the_image_model_or_its_centred_window(tmp_path):

@@ -30,7 +30,8 @@ class Frame(NamedTuple):
 
 
 class HandCamera:
-    """The hand camera of one arm: opened through ``/cameras/open`` when ``/cameras/list`` exists.
+    """The hand camera of one arm: opened through ``/cameras/open`` when ``/cameras/list`` exists, at ``resolution``
+    and ``fps``, with ``exposure`` and ``gain`` when given (``camera_controls``; -1: the camera's automatic ones).
 
     Without ``/cameras/list`` (e.g. the Gazebo simulator) the camera is assumed to stream already.
     Frames in bgra8, bgr8, rgb8 or mono8 are converted to BGR and paired with the last
@@ -39,11 +40,13 @@ class HandCamera:
     while the camera_info subscription connects, are dropped silently).
     """
 
-    def __init__(self, side, resolution=(640, 400), fps=20, timeout=5.0, service_timeout=2.0):
+    def __init__(self, side, resolution=(640, 400), fps=20, timeout=5.0, service_timeout=2.0,
+                 exposure=sdk.CAMERA_CONTROL_AUTO, gain=sdk.CAMERA_CONTROL_AUTO):
         self.name = sdk.arm_frames(side).hand_camera
         self.resolution = tuple(resolution)
         if self.resolution not in sdk.CAMERA_MODES:
             raise ValueError(f'resolution {resolution} is not a camera mode (one of {sdk.CAMERA_MODES})')
+        self.controls = camera_controls(exposure, gain)
         self.image_topic, self.info_topic = sdk.camera_topics(self.name)
         self.timeout = timeout
         self.fps = fps
@@ -66,12 +69,14 @@ class HandCamera:
                              f'close another camera first')
         wait_for_service(sdk.CAMERAS_OPEN_SERVICE, service_timeout)
         width, height = self.resolution
-        settings = msg.CameraSettings(width=width, height=height, fps=float(fps))
+        settings = msg.CameraSettings(width=width, height=height, fps=float(fps),
+                                      controls=[msg.CameraControl(id=i, value=v) for i, v in self.controls])
         err = rospy.ServiceProxy(sdk.CAMERAS_OPEN_SERVICE, srv.OpenCamera)(self.name, settings).err
         if err != 0:
             raise RobotError(f'{sdk.CAMERAS_OPEN_SERVICE} {self.name} {width}x{height}@{fps} failed: '
                              f'{errno.errorcode.get(err, err)}')
-        rospy.loginfo(f'{self.name}: opened at {width}x{height}, {fps} fps')
+        rospy.loginfo(f'{self.name}: opened at {width}x{height}, {fps} fps'
+                      + ''.join(f', {CONTROL_NAMES[i]} {v}' for i, v in self.controls))
         return True
 
     def reopen(self):
@@ -124,3 +129,25 @@ class HandCamera:
         return self._frames.wait(self.timeout if timeout is None else timeout,
                                  accept=lambda frame: after_stamp is None or frame.stamp > after_stamp,
                                  what='no new valid frame' if after_stamp is not None else 'no valid frame')
+
+
+CONTROL_NAMES = {sdk.CAMERA_CONTROL_EXPOSURE: 'exposure', sdk.CAMERA_CONTROL_GAIN: 'gain'}
+
+
+def camera_controls(exposure=sdk.CAMERA_CONTROL_AUTO, gain=sdk.CAMERA_CONTROL_AUTO):
+    """[(CameraControl id, value)] to open a camera with: ``exposure`` 0-100 and ``gain`` 0-79 (baxter_interface's
+    ranges), each left out at ``CAMERA_CONTROL_AUTO`` (-1: the camera's own); ValueError for anything else (before
+    the robot is asked). Opening a camera resets what was set before (``camera_control.py``): the app's settings
+    are the ones that hold."""
+    controls = []
+    for name, value, (low, high), control in (('exposure', exposure, sdk.CAMERA_EXPOSURE_RANGE,
+                                               sdk.CAMERA_CONTROL_EXPOSURE),
+                                              ('gain', gain, sdk.CAMERA_GAIN_RANGE, sdk.CAMERA_CONTROL_GAIN)):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f'camera {name} must be an integer ({low}-{high}, or -1: auto), got {value!r}')
+        if value == sdk.CAMERA_CONTROL_AUTO:
+            continue
+        if not low <= value <= high:
+            raise ValueError(f'camera {name} must be {low}-{high}, or -1: auto; got {value}')
+        controls.append((control, value))
+    return controls

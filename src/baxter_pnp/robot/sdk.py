@@ -80,6 +80,11 @@ def gripper_topics(side):
 # ------------------------------------------------------------------------------ cameras (interfaces §8)
 CAMERA_NAMES = (arm_frames('left').hand_camera, arm_frames('right').hand_camera, 'head_camera')
 CAMERA_MODES = ((1280, 800), (960, 600), (640, 400), (480, 300), (384, 240), (320, 200))   # (width, height) px
+CAMERA_CONTROL_EXPOSURE, CAMERA_CONTROL_GAIN = 100, 101   # baxter_core_msgs/CameraControl ids
+CAMERA_CONTROL_HALF_RESOLUTION = 109
+CAMERA_CONTROL_AUTO = -1                # baxter_interface.CameraController.CONTROL_AUTO
+CAMERA_EXPOSURE_RANGE = (0, 100)        # baxter_interface's exposure setter
+CAMERA_GAIN_RANGE = (0, 79)             # ... and gain setter
 CAMERAS_LIST_SERVICE = '/cameras/list'
 CAMERAS_OPEN_SERVICE = '/cameras/open'
 CAMERAS_CLOSE_SERVICE = '/cameras/close'

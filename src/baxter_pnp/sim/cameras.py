@@ -24,18 +24,22 @@ MAX_CAMERA_FPS = 60.0
 
 
 SENSOR_SIZE = (1280, 800)                       # px: the hand cameras' full sensor (the largest mode)
-RESOLUTION_HALF_CONTROL = 109                   # baxter_interface CameraControl.CAMERA_CONTROL_RESOLUTION_HALF
+RESOLUTION_HALF_CONTROL = sdk.CAMERA_CONTROL_HALF_RESOLUTION     # baxter_interface's CAMERA_CONTROL_RESOLUTION_HALF
+AUTO_EXPOSURE = 50                              # the exposure value the fake's automatic exposure amounts to ...
+GAIN_PER_UNIT = 1.0 / 16.0                      # ... and the brightness a unit of gain adds (x 1 at 0, x 5.9 at 79)
 
 
 @dataclasses.dataclass
 class OpenCamera:
     """An open camera: its full-sensor model, the window it delivers, the delivered image's model (what the
-    image shows: ``sensor.windowed(window)``), frame rate and schedule."""
+    image shows: ``sensor.windowed(window)``), frame rate and schedule, and the brightness its exposure and gain
+    controls give."""
     sensor: camera_module.CameraModel
     window: camera_module.SensorWindow
     model: camera_module.CameraModel
     fps: float
     schedule: RateSchedule
+    brightness: float = 1.0         # ``control_brightness`` of its exposure and gain
 
     def camera_info(self, header):
         """The ``sensor_msgs/CameraInfo`` a real hand camera publishes for this window, with ``header``."""
@@ -72,18 +76,23 @@ class CameraBank:
     def list(self):
         return list(sdk.CAMERA_NAMES)
 
-    def open(self, name, width, height, fps, now, half_resolution=False):
+    def open(self, name, width, height, fps, now, half_resolution=False, controls=()):
         """(0, '') when opened (or re-opened with new settings) at simulated time ``now``, else (errno, reason):
-        ENODEV unknown camera, EINVAL bad mode, fps or half resolution, EBUSY two other cameras already open."""
+        ENODEV unknown camera, EINVAL bad mode, fps, half resolution or exposure and gain ``controls`` ([(id,
+        value)]), EBUSY two other cameras already open."""
         problem = camera_settings_problem(name, width, height, fps, half_resolution)
         if problem:
             return problem
+        try:
+            brightness = control_brightness(controls)
+        except ValueError as error:
+            return errno.EINVAL, str(error)
         sensor, window = sensor_model(name), sensor_window(width, height, half_resolution)
         with self._lock:
             if name not in self._open and len(self._open) >= MAX_OPEN_CAMERAS:
                 return errno.EBUSY, f'{", ".join(self._open)} already open (at most {MAX_OPEN_CAMERAS} cameras)'
             self._open[name] = OpenCamera(sensor, window, sensor.windowed(window), float(fps),
-                                          RateSchedule(fps, start=now))
+                                          RateSchedule(fps, start=now), brightness)
         return 0, ''
 
     def close(self, name):
@@ -99,6 +108,24 @@ class CameraBank:
     def is_open(self, name):
         with self._lock:
             return name in self._open
+
+
+def control_brightness(controls):
+    """The factor on every intensity of the exposure and gain ``controls`` ([(CameraControl id, value)]; others
+    ignored): exposure over ``AUTO_EXPOSURE`` times 1 + gain x ``GAIN_PER_UNIT``, each 1 when automatic (-1). The
+    fake's model: the real sensor's curves are not published. ValueError for a value out of baxter_interface's
+    ranges."""
+    factor = 1.0
+    for control, value in controls:
+        for name, wanted, (low, high), scale in (
+                ('exposure', sdk.CAMERA_CONTROL_EXPOSURE, sdk.CAMERA_EXPOSURE_RANGE, lambda v: v / AUTO_EXPOSURE),
+                ('gain', sdk.CAMERA_CONTROL_GAIN, sdk.CAMERA_GAIN_RANGE, lambda v: 1.0 + v * GAIN_PER_UNIT)):
+            if control != wanted or value == sdk.CAMERA_CONTROL_AUTO:
+                continue
+            if not low <= value <= high:
+                raise ValueError(f'{name} {value} is not {low}-{high} or {sdk.CAMERA_CONTROL_AUTO} (automatic)')
+            factor *= scale(value)
+    return factor
 
 
 def camera_settings_problem(name, width, height, fps, half_resolution=False):

@@ -65,7 +65,8 @@ class CamerasNode:
             # here, not at the first frame, where it would stall the loop
             self.world.prepare_camera(image_model(request.name, settings.width, settings.height, half))
         now = self.world.time               # one instant for the frame grid and the fault clock
-        err, reason = self.bank.open(request.name, settings.width, settings.height, settings.fps, now, half)
+        err, reason = self.bank.open(request.name, settings.width, settings.height, settings.fps, now, half,
+                                     [(c.id, c.value) for c in settings.controls])
         if err:
             rospy.logwarn(f'{sdk.CAMERAS_OPEN_SERVICE} {request.name} refused ({errno.errorcode[err]}): {reason}')
         else:
@@ -119,5 +120,6 @@ class CamerasNode:
         if not self.faults.publishes(fault_time, self._frame_fault_rng.random()):
             return
         header = Header(stamp=self._ros_time(now), frame_id='/' + name)     # as the robot: leading /
-        image = self.world.render_camera(name, cam.model, self._noise_rng, gain=self.faults.gain(fault_time))
+        image = self.world.render_camera(name, cam.model, self._noise_rng,
+                                         gain=self.faults.gain(fault_time) * cam.brightness)
         self._delayed_frames.put(now, (name, bgr_to_msg(image, self.image_encoding, header), cam.camera_info(header)))

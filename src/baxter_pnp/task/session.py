@@ -109,7 +109,8 @@ class RobotSession:
         # the same wait for the first state and for the command topics' subscribers (a loaded machine)
         self.limb = robot.Limb(c.side, self.safety, timeout=c.robot_wait_timeout, max_age=c.stream_max_age)
         self.gripper = robot.Gripper(c.side, timeout=c.robot_wait_timeout, max_age=c.stream_max_age)
-        self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps)
+        self.camera = robot.HandCamera(c.side, tuple(c.resolution), c.fps, exposure=c.camera_exposure,
+                                       gain=c.camera_gain)
         if c.camera_calibration:
             self.camera_override = c.calibrated_camera()
             rospy.loginfo('%s: camera model from %s instead of camera_info' % (self.log_name, c.camera_calibration))

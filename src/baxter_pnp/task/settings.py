@@ -10,6 +10,7 @@ import yaml
 from baxter_pnp.camera import CameraModel, SensorWindow
 from baxter_pnp.models import Plane
 from baxter_pnp.params import ParameterError, Parameters, load_mapping
+from baxter_pnp.robot.sdk import CAMERA_EXPOSURE_RANGE, CAMERA_GAIN_RANGE
 from baxter_pnp.safety import MAX_TABLE_TILT
 
 
@@ -21,6 +22,9 @@ class SessionConfig(Parameters):
     side: str = 'left'                      # arm (and its hand camera)
     resolution: List[int] = field(default_factory=lambda: [640, 400])   # hand camera mode
     fps: int = 20                           # hand camera rate (Hz)
+    camera_exposure: int = -1               # hand camera exposure sent when the app opens it: 0-100, or -1: the
+                                            # camera's automatic one (opening resets what camera_control.py set)
+    camera_gain: int = -1                   # hand camera gain: 0-79, or -1: automatic (a dim table: raise these)
     camera_calibration: Optional[str] = None  # camera YAML (calibrate_camera.py) used instead of the robot's
                                             # camera_info; calibrated at a larger size: its centred window of the
                                             # mode's size (a hand camera's modes are windows of its sensor);
@@ -50,6 +54,9 @@ class SessionConfig(Parameters):
         self.require_positive('fps', 'waypoint_spacing', 'timeout', 'stream_max_age', 'frame_timeout',
                               'robot_wait_timeout', 'cycles', 'next_block_timeout', 'tip_margin')
         self.require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
+        for key, (low, high) in (('camera_exposure', CAMERA_EXPOSURE_RANGE), ('camera_gain', CAMERA_GAIN_RANGE)):
+            value = getattr(self, key)
+            self.require(value == -1 or low <= value <= high, key, 'must be %d-%d, or -1: automatic' % (low, high))
         self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
         self.require(len(self.table_area) == 4 and all(map(math.isfinite, self.table_area))
                      and self.table_area[0] < self.table_area[2] and self.table_area[1] < self.table_area[3],

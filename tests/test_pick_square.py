@@ -47,11 +47,13 @@ def run_pick(ros_master, tmp_path, *args):
     return run, result
 
 
-@pytest.mark.parametrize('mode, start_pose, look', [('pbvs', 'down', 'clean'), ('ibvs', 'down', 'clean'),
-                                                     ('hybrid', 'angled', 'baxter')])
-def test_pick_each_mode(mode, start_pose, look, ros_master, ros_node, fake_baxter, tmp_path):
+@pytest.mark.parametrize('mode, start_pose, look, camera', [
+    ('pbvs', 'down', 'clean', ()), ('ibvs', 'down', 'clean', ()),
+    ('hybrid', 'angled', 'baxter', ('--camera-exposure', '65', '--camera-gain', '3'))])
+def test_pick_each_mode(mode, start_pose, look, camera, ros_master, ros_node, fake_baxter, tmp_path):
     """One verified pick per mode; the hybrid one under the real hand camera's look (``appearance: baxter``: grey
-    textured table in dim light, vignetting, colour cast and noise; docs/fake_baxter.md, "Appearance")."""
+    textured table in dim light, vignetting, colour cast and noise; docs/fake_baxter.md, "Appearance"), its camera
+    opened with an exposure and a gain of the app's (the fake's frames 1.55 x brighter)."""
     with open(DEFAULT_SCENE_YAML) as f:
         scene = yaml.safe_load(f)
     scene['appearance'] = look
@@ -62,8 +64,9 @@ def test_pick_each_mode(mode, start_pose, look, ros_master, ros_node, fake_baxte
     fake = fake_baxter('--real-time-factor', '1', '--clock', 'sim', '--scene', scene_path)
     try:
         z_before = ground_truth_block()[2, 3]
-        run, result = run_pick(ros_master, tmp_path, '--mode', mode, '--start-pose', start_pose)
+        run, result = run_pick(ros_master, tmp_path, '--mode', mode, '--start-pose', start_pose, *camera)
         assert run.returncode == 0, run.log()[-3000:]
+        assert ('exposure 65, gain 3' in run.log()) == bool(camera), run.log()[:3000]
         assert result['success'] and result['mode'] == mode and result['failure_reason'] is None
         assert result['steps'] >= 1 and 0 < result['time_s'] < 30, run.log()[-6000:]
         # every step says what posed the block: the configured estimator, the silhouette on the table, or a prediction

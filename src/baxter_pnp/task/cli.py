@@ -23,6 +23,8 @@ SESSION_OPTIONS = {
     'hand_eye': (('--hand-eye',), dict(metavar='YAML', help='hand-eye calibration (calibrate_hand_eye.py) to use '
                                                             'instead of tf / the URDF')),
     'speed_ratio': (('--speed-ratio',), dict(type=float, help='arm speed ratio (0, 1]')),
+    'camera_exposure': (('--camera-exposure',), dict(type=int, help='hand camera exposure 0-100 (-1: automatic)')),
+    'camera_gain': (('--camera-gain',), dict(type=int, help='hand camera gain 0-79 (-1: automatic)')),
     'save_views': (('--save-views',), dict(action='store_true', default=None,
                                            help='save every annotated camera view as a PNG in OUTPUT_DIR/views')),
 }

@@ -113,6 +113,21 @@ def test_an_estimate_off_its_height_tells_the_side_length_that_would_put_it_on_t
     assert target.rejected_for_height([low, deep, red_deep], T_BASE_CAMERA, RULES) == [deep]
 
 
+def test_a_still_blocks_position_is_the_mean_of_its_agreeing_looks():
+    """The newest looks (3 at most) within 3 combined stds + 1 mm of the newest, weighted by their inverse variance:
+    two solutions 5 mm apart, each +-1-3 mm, give their mean; a block moved 30 mm starts afresh; no std: the newest."""
+    a, b = np.array([0.5, 0.0, -0.126]), np.array([0.5, 0.0, -0.131])
+    np.testing.assert_allclose(target.steady_position([(a, 0.002), (b, 0.002), (a, 0.002)]), (2 * a + b) / 3)
+    np.testing.assert_allclose(target.steady_position([(b, 0.001), (a, 0.002), (b, 0.002), (a, 0.002)]),
+                               (2 * a + b) / 3)                                   # the oldest is out of the window
+    np.testing.assert_allclose(target.steady_position([(a, 0.001), (b, 0.002)]), (4 * a + b) / 5)
+    moved = a + [0.03, 0.0, 0.0]
+    np.testing.assert_allclose(target.steady_position([(a, 0.002), (b, 0.002), (moved, 0.002)]), moved)
+    np.testing.assert_allclose(target.steady_position([(a, 0.002), (moved, 0.002), (b, 0.002)]), b)
+    np.testing.assert_allclose(target.steady_position([(a, 0.002), (b, None)]), b)
+    np.testing.assert_allclose(target.steady_position([(a, None), (b, 0.002)]), b)
+
+
 def test_choose_target_tracks_the_same_block_else_takes_the_largest():
     small, large = observation(0.70, 0.02, area=800.0), observation(0.75, 0.20, area=1200.0)
     image_size = (640, 400)

@@ -212,12 +212,14 @@ class Picker:
         return translation, rotation
 
     def approach_pbvs(self):
-        """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted.
-        Returns the look at the hover pose."""
+        """The thesis's dynamic look-and-move, fixed: yaw aligned, block kept in view, plane prior, undistorted,
+        toward the block's steady position over the last looks (``steadied``). Returns the look at the hover pose."""
         c, T_gripper_camera = self.config, self.session.hand_eye.T_gripper_camera
         look = self.look_for_block()
         approach = self.approach = self.plan_approach(look)
+        seen = []                           # (position in base, std) of the looks that saw the block
         for step in range(c.max_steps + 1):
+            look = steadied(look, seen)
             T_goal = pick.hover_pose(look.T_base_block, c, approach.T_reference)
             self.record(step, look, T_goal, pick.image_error_px(look.frame.camera, look.target.pose.T_camera_object,
                                                                 T_goal, look.T_base_block, T_gripper_camera))
@@ -421,3 +423,13 @@ class Picker:
         self.T_gripper_block = None
         self.motion.move_up(c.lift_height, 'retreat')
 
+
+def steadied(look, seen):
+    """``look`` with its block at ``target.steady_position`` of the looks that saw it (``seen``, this one appended;
+    its orientation this look's); a look that did not see the block (predicted) as it is."""
+    if look.predicted:
+        return look
+    seen.append((look.T_base_block[:3, 3].copy(), look.target.pose.position_std_m))
+    T_base_block = look.T_base_block.copy()
+    T_base_block[:3, 3] = target.steady_position(seen)
+    return look._replace(T_base_block=T_base_block)

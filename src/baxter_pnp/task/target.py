@@ -24,6 +24,9 @@ from baxter_pnp.transforms import invert, raised, transform_points
 
 TRACK_RADIUS = 0.05     # m: an estimate this close to the last one is the same block
 GRASP_HEIGHT_WARNING = 0.003    # m: see grasp_height_suspect
+STEADY_WINDOW = 3       # steady_position: the newest looks averaged, those within STEADY_GATE combined stds plus
+STEADY_GATE = 3.0       # STEADY_SLACK (m) of the newest
+STEADY_SLACK = 0.001
 
 
 @dataclass(frozen=True)
@@ -192,3 +195,24 @@ def search_pose(T_base_gripper, lost, backoff_height, T_base_view=None, reachabl
         if reachable is None or reachable(T_view):
             return T_view, True
     return raised(T_base_gripper, backoff_height), False
+
+
+def steady_position(history, window=STEADY_WINDOW):
+    """The position (3,) in base of a block standing still, from ``history`` [(position (3,) m, std m or None)] of
+    the looks at it, newest last: the inverse-variance mean of the newest looks, at most ``window``, back to the
+    first that lies farther than ``STEADY_GATE`` combined stds plus ``STEADY_SLACK`` from the newest (a block
+    moved, or estimated otherwise now, starts afresh); the newest alone when its std is unknown. A PBVS approach
+    whose estimates alternate between two solutions a few millimetres apart steps toward their mean instead of
+    chasing each one (docs/trials.md, "Session 22")."""
+    newest, newest_std = history[-1]
+    newest = np.asarray(newest, dtype=float)
+    if newest_std is None:
+        return newest
+    total, weights = np.zeros(3), 0.0
+    for position, std in reversed(history[-window:]):
+        position = np.asarray(position, dtype=float)
+        if std is None or np.linalg.norm(position - newest) > STEADY_GATE * np.hypot(std, newest_std) + STEADY_SLACK:
+            break
+        weight = 1.0 / max(std, 1e-6) ** 2
+        total, weights = total + weight * position, weights + weight
+    return total / weights

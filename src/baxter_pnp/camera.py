@@ -141,9 +141,9 @@ class CameraModel:
             raise ValueError(f'camera YAML: distortion_model {model!r} is not supported (only {DISTORTION_MODEL!r})')
         K = _matrix_field(d, 'camera_matrix', 3, 3)
         D = _matrix_field(d, 'distortion_coefficients', 1, 5)
-        _check_rectification(*(_matrix_field(d, key, rows, cols) if key in d else np.zeros((rows, cols)) for key, rows, cols
-                               in (('rectification_matrix', 3, 3), ('projection_matrix', 3, 4))),
-                             'camera YAML: rectification_matrix', 'camera YAML: projection_matrix')
+        R = _matrix_field(d, 'rectification_matrix', 3, 3) if 'rectification_matrix' in d else np.zeros((3, 3))
+        P = _matrix_field(d, 'projection_matrix', 3, 4) if 'projection_matrix' in d else np.zeros((3, 4))
+        _check_rectification(R, P, 'camera YAML: rectification_matrix', 'camera YAML: projection_matrix')
         if K[0, 0] == 0 or K[1, 1] == 0:
             raise ValueError(f'camera YAML: camera_matrix has a zero focal length (fx={K[0, 0]}, fy={K[1, 1]})')
         width = _integer_field(d['image_width'], 'camera YAML: image_width')    # > 0: checked by the model
@@ -201,10 +201,10 @@ class CameraModel:
         point ``(c - roi offset) / binning``, focal lengths / binning (a Baxter hand camera at 640x400 sends
         the full-sensor K with roi offset (320, 200)). An empty ``D`` means no distortion; a leading ``/`` of
         ``frame_id`` is dropped (tf2 frame names have none). ValueError naming the bad field: non-finite ``K``,
-        ``D``, ``R`` or ``P``, an ``R`` that is no rotation, a ``P`` or ``K`` focal length that is not positive (``K``'s
-        also outside ``FOCAL_RANGE_PX``), a ``K`` that is not upper triangular, or an ROI larger than the sensor (``roi`` size over
-        ``width`` x ``height`` times binning: the message's size is the sensor's by the message definition, the
-        delivered image's as Baxter sends it; both satisfy this bound).
+        ``D``, ``R`` or ``P``, an ``R`` that is no rotation, a ``P`` or ``K`` focal length that is not positive
+        (``K``'s also outside ``FOCAL_RANGE_PX``), a ``K`` that is not upper triangular, or an ROI larger than the
+        sensor (``roi`` size over ``width`` x ``height`` times binning: the message's size is the sensor's by the
+        message definition, the delivered image's as Baxter sends it; both satisfy this bound).
         """
         model = msg.distortion_model or DISTORTION_MODEL
         if model != DISTORTION_MODEL:

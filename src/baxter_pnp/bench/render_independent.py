@@ -178,7 +178,7 @@ def _light_in_camera(blocks, look):
     """The direction towards ``look``'s light in the camera frame; ValueError without blocks (the table is the first
     block's bottom plane)."""
     if not blocks:
-        raise ValueError('render_scene: no blocks to draw')
+        raise ValueError('render_independent: no blocks to draw')
     return np.asarray(blocks[0][1], dtype=float)[:3, :3] @ _light_direction(look)
 
 

@@ -76,7 +76,7 @@ class HandCamera:
             raise RobotError(f'{sdk.CAMERAS_OPEN_SERVICE} {self.name} {width}x{height}@{fps} failed: '
                              f'{errno.errorcode.get(err, err)}')
         rospy.loginfo(f'{self.name}: opened at {width}x{height}, {fps} fps'
-                      + ''.join(f', {CONTROL_NAMES[i]} {v}' for i, v in self.controls))
+                      + ''.join(f', {sdk.CAMERA_CONTROL_RANGES[i][0]} {v}' for i, v in self.controls))
         return True
 
     def reopen(self):
@@ -131,23 +131,14 @@ class HandCamera:
                                  what='no new valid frame' if after_stamp is not None else 'no valid frame')
 
 
-CONTROL_NAMES = {sdk.CAMERA_CONTROL_EXPOSURE: 'exposure', sdk.CAMERA_CONTROL_GAIN: 'gain'}
-
-
 def camera_controls(exposure=sdk.CAMERA_CONTROL_AUTO, gain=sdk.CAMERA_CONTROL_AUTO):
     """[(CameraControl id, value)] to open a camera with: ``exposure`` 0-100 and ``gain`` 0-79 (baxter_interface's
     ranges), each left out at ``CAMERA_CONTROL_AUTO`` (-1: the camera's own); ValueError for anything else (before
     the robot is asked). Opening a camera resets what was set before (``camera_control.py``): the app's settings
     are the ones that hold."""
-    controls = []
-    for name, value, (low, high), control in (('exposure', exposure, sdk.CAMERA_EXPOSURE_RANGE,
-                                               sdk.CAMERA_CONTROL_EXPOSURE),
-                                              ('gain', gain, sdk.CAMERA_GAIN_RANGE, sdk.CAMERA_CONTROL_GAIN)):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f'camera {name} must be an integer ({low}-{high}, or -1: auto), got {value!r}')
-        if value == sdk.CAMERA_CONTROL_AUTO:
-            continue
-        if not low <= value <= high:
-            raise ValueError(f'camera {name} must be {low}-{high}, or -1: auto; got {value}')
-        controls.append((control, value))
-    return controls
+    controls = [(sdk.CAMERA_CONTROL_EXPOSURE, exposure), (sdk.CAMERA_CONTROL_GAIN, gain)]
+    for control, value in controls:
+        problem = sdk.camera_control_problem(control, value)
+        if problem:
+            raise ValueError(problem)
+    return [(control, value) for control, value in controls if value != sdk.CAMERA_CONTROL_AUTO]

@@ -83,9 +83,20 @@ CAMERA_MODES = ((1280, 800), (960, 600), (640, 400), (480, 300), (384, 240), (32
 CAMERA_CONTROL_EXPOSURE, CAMERA_CONTROL_GAIN = 100, 101   # baxter_core_msgs/CameraControl ids
 CAMERA_CONTROL_HALF_RESOLUTION = 109
 CAMERA_CONTROL_AUTO = -1                # baxter_interface.CameraController.CONTROL_AUTO
-CAMERA_EXPOSURE_RANGE = (0, 100)        # baxter_interface's exposure setter
-CAMERA_GAIN_RANGE = (0, 79)             # ... and gain setter
+CAMERA_CONTROL_RANGES = {CAMERA_CONTROL_EXPOSURE: ('exposure', 0, 100),   # baxter_interface's setters' ranges
+                         CAMERA_CONTROL_GAIN: ('gain', 0, 79)}
 CAMERAS_LIST_SERVICE = '/cameras/list'
+
+
+def camera_control_problem(control, value):
+    """None when ``value`` is an integer in the range of exposure or gain ``control`` (``CAMERA_CONTROL_RANGES``) or
+    ``CAMERA_CONTROL_AUTO``, else what is wrong with it."""
+    name, low, high = CAMERA_CONTROL_RANGES[control]
+    if isinstance(value, bool) or not isinstance(value, int):
+        return f'camera {name} must be an integer {low}-{high}, or {CAMERA_CONTROL_AUTO}: automatic; got {value!r}'
+    if value != CAMERA_CONTROL_AUTO and not low <= value <= high:
+        return f'camera {name} must be {low}-{high}, or {CAMERA_CONTROL_AUTO}: automatic; got {value}'
+    return None
 CAMERAS_OPEN_SERVICE = '/cameras/open'
 CAMERAS_CLOSE_SERVICE = '/cameras/close'
 

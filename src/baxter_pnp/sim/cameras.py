@@ -114,17 +114,16 @@ def control_brightness(controls):
     """The factor on every intensity of the exposure and gain ``controls`` ([(CameraControl id, value)]; others
     ignored): exposure over ``AUTO_EXPOSURE`` times 1 + gain x ``GAIN_PER_UNIT``, each 1 when automatic (-1). The
     fake's model: the real sensor's curves are not published. ValueError for a value out of baxter_interface's
-    ranges."""
+    ranges (``sdk.camera_control_problem``)."""
     factor = 1.0
     for control, value in controls:
-        for name, wanted, (low, high), scale in (
-                ('exposure', sdk.CAMERA_CONTROL_EXPOSURE, sdk.CAMERA_EXPOSURE_RANGE, lambda v: v / AUTO_EXPOSURE),
-                ('gain', sdk.CAMERA_CONTROL_GAIN, sdk.CAMERA_GAIN_RANGE, lambda v: 1.0 + v * GAIN_PER_UNIT)):
-            if control != wanted or value == sdk.CAMERA_CONTROL_AUTO:
-                continue
-            if not low <= value <= high:
-                raise ValueError(f'{name} {value} is not {low}-{high} or {sdk.CAMERA_CONTROL_AUTO} (automatic)')
-            factor *= scale(value)
+        if control not in sdk.CAMERA_CONTROL_RANGES:
+            continue
+        problem = sdk.camera_control_problem(control, value)
+        if problem:
+            raise ValueError(problem)
+        if value != sdk.CAMERA_CONTROL_AUTO:
+            factor *= value / AUTO_EXPOSURE if control == sdk.CAMERA_CONTROL_EXPOSURE else 1.0 + value * GAIN_PER_UNIT
     return factor
 
 

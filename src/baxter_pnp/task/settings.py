@@ -10,7 +10,7 @@ import yaml
 from baxter_pnp.camera import CameraModel, SensorWindow
 from baxter_pnp.models import Plane
 from baxter_pnp.params import ParameterError, Parameters, load_mapping
-from baxter_pnp.robot.sdk import CAMERA_EXPOSURE_RANGE, CAMERA_GAIN_RANGE
+from baxter_pnp.robot.sdk import CAMERA_CONTROL_EXPOSURE, CAMERA_CONTROL_GAIN, camera_control_problem
 from baxter_pnp.safety import MAX_TABLE_TILT
 
 
@@ -54,9 +54,9 @@ class SessionConfig(Parameters):
         self.require_positive('fps', 'waypoint_spacing', 'timeout', 'stream_max_age', 'frame_timeout',
                               'robot_wait_timeout', 'cycles', 'next_block_timeout', 'tip_margin')
         self.require(0.0 < self.speed_ratio <= 1.0, 'speed_ratio', 'must be in (0, 1]')
-        for key, (low, high) in (('camera_exposure', CAMERA_EXPOSURE_RANGE), ('camera_gain', CAMERA_GAIN_RANGE)):
-            value = getattr(self, key)
-            self.require(value == -1 or low <= value <= high, key, 'must be %d-%d, or -1: automatic' % (low, high))
+        for key, control in (('camera_exposure', CAMERA_CONTROL_EXPOSURE), ('camera_gain', CAMERA_CONTROL_GAIN)):
+            problem = camera_control_problem(control, getattr(self, key))
+            self.require(problem is None, key, problem)
         self.require(math.isfinite(self.table_top_z), 'table_top_z', 'must be a number')
         self.require(len(self.table_area) == 4 and all(map(math.isfinite, self.table_area))
                      and self.table_area[0] < self.table_area[2] and self.table_area[1] < self.table_area[3],

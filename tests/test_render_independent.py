@@ -207,8 +207,10 @@ def test_r2_datasets_built_measured_and_dumped(camera, tmp_path):
             assert low <= side_px <= high, (kind, side_px)
             if kind == 'dice_r2':
                 assert block.height == block.side and block.marks.side_pips and block.corner_radius > 0
-            if kind == 'green40_r2':
+            if kind in ('green40_r2', 'sharp40_r2'):
                 assert (block.shape, colour, block.side) == ('square', 'green', 0.040)
+            if kind == 'sharp40_r2':
+                assert block.corner_radius == block.bevel == 0.0 and block.marks == r2.Marks()
         rows += perception_bench.run_dataset(kind, samples, camera, config, 3, crops)
     assert len(rows) == 3 * len(perception_bench.R2_DATASETS) * len(perception_bench.ESTIMATORS)
     summaries = [perception_bench.summarise(rows, kind, 'sqp') for kind in perception_bench.R2_DATASETS]

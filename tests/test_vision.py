@@ -581,6 +581,36 @@ def test_a_narrow_side_face_on_a_near_block_is_cut_off_too(config):
     assert np.abs(cut[:, 0].max() - crease_u) <= 1.0 and np.abs(cut[:, 0].min() - polygon[:, 0].min()) < 1e-9
 
 
+def _face_with_wedge(near_px, far_px, strip_value=130, size=60):
+    """A green face beside a side face seen in perspective: a strip (V ``strip_value``) ``near_px`` wide at the
+    face's top row, ``far_px`` at its bottom (antialiased), on a grey table, blurred. Returns (image, polygon of face
+    + strip, the face's right edge's u)."""
+    image = np.full((200, 200, 3), 120, np.uint8)
+    x0, y0 = 50, 60
+    x_face = x0 + size
+    columns = np.arange(x_face, x_face + 16)
+    for row in range(size):
+        width = near_px + (far_px - near_px) * (row + 0.5) / size
+        cover = np.clip(x_face + width - columns, 0.0, 1.0)[:, None]
+        table = image[y0 + row, x_face:x_face + 16].astype(float)
+        image[y0 + row, x_face:x_face + 16] = (cover * (0, strip_value, 0) + (1 - cover) * table).astype(np.uint8)
+    image[y0:y0 + size, x0:x_face] = (40, 150, 40)
+    image = cv2.GaussianBlur(image, (5, 5), 1.0)
+    polygon = np.array([[x0, y0], [x_face + near_px, y0], [x_face + far_px, y0 + size], [x0, y0 + size]], float)
+    return image, polygon - 0.5, x_face - 0.5
+
+
+@pytest.mark.parametrize('near_px, far_px', [(4, 10), (3, 9)])
+def test_a_wedge_shaped_side_face_is_cut_off(config, near_px, far_px):
+    """A side face seen in perspective, 3-4 px wide at one end and 9-10 px at the other (a 40 mm cube 0.2-0.4 m
+    away, tilted): the sloped lines' band starts deeper than its narrow end, yet the strip is judged where the
+    crease leaves it; the edge moves onto the crease."""
+    image, polygon, crease_u = _face_with_wedge(near_px, far_px)
+    cut = vision.cut_side_faces(image, polygon, config.side_face_cut)
+    assert np.abs(cut[1:3, 0] - crease_u).max() <= 1.0
+    assert np.allclose(cut[[0, 3]], polygon[[0, 3]])
+
+
 @pytest.mark.parametrize('case', ['no strip', 'a printed line inside', 'shading towards the edge', 'too small',
                                   'a shadow across block and table'])
 def test_no_crease_no_cut(config, case):

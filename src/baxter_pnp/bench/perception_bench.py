@@ -15,7 +15,9 @@ and shadows, a dim textured table, vignetting, pips, letters, grain and glare, 8
 - ``mixed_r2``: as ``mixed``;
 - ``dice_r2``: 16-25 mm dice (cubes) of the four colours, pips on every face, rounded edges, 15-60 px a side,
   up to 40 deg tilt (two side faces often in view);
-- ``small_r2``: blocks of every shape and colour 15-25 px a side.
+- ``small_r2``: blocks of every shape and colour 15-25 px a side;
+- ``sharp40_r2``: 40 mm green squares as ``green40_r2``, but sharp (no rounded edge or rim, no marks): the issue's
+  independent renderer (antialiasing, soft shading, side-face slivers, blur, JPEG), which rounding does not hide.
 
 Errors are against the renderer's ground truth (the top face's sharp corners, where its edge lines meet):
 vertex error (px, mean distance of each detected vertex to the nearest true one), position of the top-face
@@ -44,7 +46,7 @@ COLOURS_BGR = {'green': (40, 170, 40), 'red': (40, 40, 200), 'blue': (200, 90, 3
 ESTIMATORS = ('sqp', 'sqp+plane', 'sqp+edge', 'ippe', 'sqpnp')     # described in the module docstring
 BLOCK_HEIGHT = 0.02
 PROJECT_DATASETS = ('mixed', 'green40', 'depth161')
-R2_DATASETS = ('green40_r2', 'mixed_r2', 'dice_r2', 'small_r2')
+R2_DATASETS = ('green40_r2', 'mixed_r2', 'dice_r2', 'small_r2', 'sharp40_r2')
 LABEL_CHARACTERS = 'ABCDEFGHKLMNPRSTUVXYZ2345789'
 # the blocks of green40_r2, mixed_r2 and small_r2: this fraction has rounded vertical edges of a radius in this
 # range (m), that fraction a rounded-over top rim (the silhouette then lies up to the bevel inside the sharp corners)
@@ -95,7 +97,7 @@ def make_dataset(kind, count, seed, camera):
 
 def _r2_sample(kind, rng, camera):
     """One (``render_independent.Block``, T_camera_block, colour) of the ``_r2`` dataset ``kind``."""
-    colour = 'green' if kind == 'green40_r2' else str(rng.choice(sorted(COLOURS_BGR)))
+    colour = 'green' if kind in ('green40_r2', 'sharp40_r2') else str(rng.choice(sorted(COLOURS_BGR)))
     albedo = np.clip(np.asarray(COLOURS_BGR[colour], float) * rng.uniform(0.85, 1.15, size=3), 0, 255)
     albedo = tuple(albedo + rng.uniform(0.0, 0.2) * (albedo.mean() - albedo))          # a little less saturated
     focal_px = camera.fx
@@ -108,6 +110,8 @@ def _r2_sample(kind, rng, camera):
         block = render_independent.Block('square', side, side, albedo, corner_radius=side * rng.uniform(0.08, 0.15),
                                          bevel=side * rng.uniform(0.05, 0.12), marks=marks)
         distances, max_tilt = (focal_px * side / 60.0, focal_px * side / 15.0), 40.0
+    elif kind == 'sharp40_r2':
+        block, distances, max_tilt = render_independent.Block('square', 0.040, BLOCK_HEIGHT, albedo), (0.13, 0.40), 35.0
     else:
         if kind == 'green40_r2':
             shape, side, distances = 'square', 0.040, (0.13, 0.40)

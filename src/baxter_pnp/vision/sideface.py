@@ -19,6 +19,8 @@ _TILTS = np.linspace(-0.12, 0.12, 9)            # a crease's slope against the e
 _PRECHECK = 0.8                                 # slopes searched where straight profiles rise by this x min_rise
 _TABLE_REACH_PX = (4.0, 7.0, 10.0)              # the table sampled this far beyond a crease's ends ...
 _TABLE_SIDE_PX = 3.0                            # ... this far to either side of its line (_shadow_edge)
+_STRIP_PX = (3.0, 1.5)                          # the strip is judged from this depth to this far before the crease
+_MIN_STRIP_SAMPLES = 3                          # ... at this many depths at least (1 px): else no strip, only blur
 
 
 def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
@@ -69,7 +71,8 @@ def cut_side_faces(image_bgr, polygon, config, value=None, value_origin=(0, 0)):
     points, lines = centres + origin, directions.copy()
     found = False
     for index, k in enumerate(candidates):
-        crease = _crease(profiles[index], depths, deep, config) or _crease(profiles[index], depths, usable, config)
+        crease = (_crease(profiles[index], straight[k], along[k], depths, deep, config)
+                  or _crease(profiles[index], straight[k], along[k], depths, usable, config))
         if crease is None:
             continue
         tilt, depth = crease
@@ -145,10 +148,14 @@ def _profiles(value, centres, directions, inward, along, shifts, depths):
                      borderMode=cv2.BORDER_REPLICATE).reshape(shape)
 
 
-def _crease(profiles, depths, usable, config):
+def _crease(profiles, straight, along, depths, usable, config):
     """(tilt, depth at the edge's middle (px)) of the crease in ``profiles`` (T, M, K), or None
     (``cut_side_faces``); ``usable`` (T, K): the depths at which each slope's line stays within the searched band
-    (clear of the outline's blur) all along the edge."""
+    (clear of the outline's blur) all along the edge. The strip is judged on the straight profiles ``straight``
+    (M, K) (at ``along`` (M,) px from the edge's middle), clear of the outline's and the crease's blur
+    (``_STRIP_PX``): a wedge-shaped strip (a side face seen in perspective) is as wide as the sloped crease leaves
+    it, not as the band of the slope. The range of its middle (``_middle``) must stay within half the step from it
+    to the face: flat, not a ramp from the outline."""
     mean = np.add.reduce(profiles, axis=1) / profiles.shape[1]                      # (T, K)
     rises = np.where(usable[:, _RISE_SPAN:] & usable[:, :-_RISE_SPAN],
                      mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN], -np.inf)         # (T, K - span)
@@ -156,15 +163,30 @@ def _crease(profiles, depths, usable, config):
     if not np.isfinite(rises[tilt, j]):
         return None                     # no slope fits the band
     crease = j + _RISE_SPAN // 2                                                    # index of the crease's depth
-    first, last = np.flatnonzero(usable[tilt])[[0, -1]]
-    strip = mean[tilt, first:max(crease - 1, 0)]
-    if len(strip) < _RISE_SPAN:
+    last = np.flatnonzero(usable[tilt])[-1]
+    strip = _strip(straight, along, depths, depths[crease] + _TILTS[tilt] * along - _STRIP_PX[1])
+    if len(strip) < _MIN_STRIP_SAMPLES:
         return None                     # no strip: the outline's own blur or a rim's shaded band
     face = float(mean[tilt, crease + 2:last + 1].mean())
     rise = float(rises[tilt, j])
     agreement = float(np.mean(profiles[tilt, :, j + _RISE_SPAN] > profiles[tilt, :, j]))
     if not (rise >= config.min_rise * face and agreement >= config.min_agreement
             and float(strip.max()) <= config.max_strip_brightness * face
-            and float(strip.max() - strip.min()) <= 0.5 * rise):      # a flat strip, not a ramp from the outline
+            and float(np.ptp(_middle(strip))) <= 0.5 * rise):
         return None
     return _TILTS[tilt], depths[crease]
+
+
+def _middle(strip):
+    """``strip`` without a tenth of its samples at either end (the blur of the outline and of the crease)."""
+    trim = len(strip) // 10
+    return strip[trim:len(strip) - trim]
+
+
+def _strip(straight, along, depths, limits):
+    """(S,) mean V at each of the ``depths`` from ``_STRIP_PX[0]`` on over the profiles ``straight`` (M, K) whose
+    depth ``limits`` (M,) it is within, as long as half the profiles are."""
+    inside = (depths[None, :] <= limits[:, None]) & (depths >= _STRIP_PX[0])        # (M, K)
+    count = np.add.reduce(inside, axis=0)
+    kept = count >= 0.5 * len(limits)
+    return np.add.reduce(np.where(inside, straight, 0.0), axis=0)[kept] / count[kept]

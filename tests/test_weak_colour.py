@@ -65,6 +65,19 @@ def test_a_dim_face_on_a_grey_table_is_found_below_its_class_floor(config):
     assert vision.detect(image, with_chroma(config, weak_floor_fraction=1.0)) == []
 
 
+def test_dim_light_on_a_dark_table_is_balanced_on_the_table(config):
+    """Dim light on a dark grey table (L* 9: most of the picture is under the white balance's usual floor) and one
+    lit green square: the balance is taken from the table, not from the square, whose colour it would otherwise
+    call the light's; the square is found and the gains stay near 1."""
+    lab = lab_image(lightness=9.0)
+    paint(lab, square_mask(half=40), lightness=40.0, chroma=35.0, hue_deg=150.0)
+    image = to_bgr(lab)
+    gains, cast = vision.chroma.white_balance(image, config.chroma)
+    assert np.abs(gains - 1.0).max() < 0.15 and cast < config.chroma.max_residual_cast
+    found = vision.detect(image, config)
+    assert [(d.colour, d.shape) for d in found] == [('green', 'square')]
+
+
 def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
     """The same square on a patch tinted towards blue (chroma 9, under the weaker floor): it stands 8 above its
     surroundings, under ``weak_min_contrast`` (and under ``surround_min_contrast``'s 10; its ring is all of the tint,

@@ -17,14 +17,17 @@ import numpy as np
 _LAB_SCALE = 255.0 / 100.0          # OpenCV 8-bit L = L* * 255 / 100; a = a* + 128; b = b* + 128
 _WB_PIXELS = 2000                   # white_balance_gains: images larger than this are sampled every _WB_STRIDE px
 _WB_STRIDE = 2
-_WB_MIN_LIGHTNESS = 20              # L*: darker pixels are too noisy to say what the light's colour is
+_WB_MIN_LIGHTNESS = 20              # L*: darker pixels are too noisy to say what the light's colour is ...
+_WB_DIM_LIGHTNESS = 5               # ... unless most of the picture is darker (dim light): then the pixels between
+_WB_DIM_PERCENTILES = (30, 70)      # these percentiles of its lightness (the table's; a lit block is brighter), >= 5
 
 
 def white_balance_gains(image_bgr, config):
     """(3,) float32 per-channel gains (B, G, R) that make the image's achromatic majority grey.
 
     The illuminant is the per-channel median of the pixels of mid lightness (neither clipped nor near
-    black; on a cell that is mostly the table) whose chroma is below the image's median chroma; the
+    black; on a cell that is mostly the table; in a picture mostly darker than that, dim light on a dark table, the
+    middle 40 % of its lightness, the table's, not a lit block's) whose chroma is below their median chroma; the
     gains scale each channel to their mean, clipped to ``1 / max_gain .. max_gain`` so a frame filled by
     one coloured object cannot be turned grey. Ones when disabled or when too few pixels qualify. Pass a
     subsampled image (detection passes the candidate search's); above 2000 px every 2nd pixel is used.
@@ -45,7 +48,12 @@ def white_balance(image_bgr, config):
     lab = cv2.cvtColor(pixels, cv2.COLOR_BGR2LAB).reshape(-1, 3)
     ab = lab[:, 1:].astype(np.int32) - 128
     chroma_squared = ab[:, 0] * ab[:, 0] + ab[:, 1] * ab[:, 1]
-    mid = (lab[:, 0] >= _WB_MIN_LIGHTNESS * _LAB_SCALE) & (lab[:, 0] <= 95 * _LAB_SCALE)
+    lightness = lab[:, 0]
+    lit = lightness >= _WB_MIN_LIGHTNESS * _LAB_SCALE
+    mid = lit & (lightness <= 95 * _LAB_SCALE)
+    if np.count_nonzero(lit) < 0.5 * len(lightness):           # dim light: the table is darker than that
+        low, high = np.percentile(lightness, _WB_DIM_PERCENTILES)
+        mid = (lightness >= max(low, _WB_DIM_LIGHTNESS * _LAB_SCALE)) & (lightness <= high)
     if np.count_nonzero(mid) < 0.05 * len(mid):
         return ones, 0.0
     grey = mid & (chroma_squared <= _median(chroma_squared[mid]))

@@ -154,8 +154,8 @@ def _crease(profiles, straight, along, depths, usable, config):
     (clear of the outline's blur) all along the edge. The strip is judged on the straight profiles ``straight``
     (M, K) (at ``along`` (M,) px from the edge's middle), clear of the outline's and the crease's blur
     (``_STRIP_PX``): a wedge-shaped strip (a side face seen in perspective) is as wide as the sloped crease leaves
-    it, not as the band of the slope. The range of its middle (``_middle``) must stay within half the step from it
-    to the face: flat, not a ramp from the outline."""
+    it, not as the band of the slope. The range of its middle (``_middle``) must stay within half the crease's rise
+    over 2 px: flat, not a ramp from the outline."""
     mean = np.add.reduce(profiles, axis=1) / profiles.shape[1]                      # (T, K)
     rises = np.where(usable[:, _RISE_SPAN:] & usable[:, :-_RISE_SPAN],
                      mean[:, _RISE_SPAN:] - mean[:, :-_RISE_SPAN], -np.inf)         # (T, K - span)

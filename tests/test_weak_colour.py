@@ -78,6 +78,15 @@ def test_dim_light_on_a_dark_table_is_balanced_on_the_table(config):
     assert [(d.colour, d.shape) for d in found] == [('green', 'square')]
 
 
+def test_a_bright_picture_mostly_clipped_is_not_dim(config):
+    """A white sheet clipped to 255 over 60 % of the picture and a warm grey table (BGR 100, 110, 120) under the rest:
+    no dim light (the clipped pixels are bright, though not of mid lightness), so the balance makes the table grey."""
+    image = np.empty((100, 100, 3), np.uint8)
+    image[:60], image[60:] = 255, (100, 110, 120)
+    gains, _ = vision.chroma.white_balance(image, config.chroma)
+    assert np.allclose(gains * (100, 110, 120), 110.0, atol=1.0)
+
+
 def test_a_dim_face_on_a_table_of_the_same_tint_is_not(config):
     """The same square on a patch tinted towards blue (chroma 9, under the weaker floor): it stands 8 above its
     surroundings, under ``weak_min_contrast`` (and under ``surround_min_contrast``'s 10; its ring is all of the tint,

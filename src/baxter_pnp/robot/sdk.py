@@ -86,6 +86,8 @@ CAMERA_CONTROL_AUTO = -1                # baxter_interface.CameraController.CONT
 CAMERA_CONTROL_RANGES = {CAMERA_CONTROL_EXPOSURE: ('exposure', 0, 100),   # baxter_interface's setters' ranges
                          CAMERA_CONTROL_GAIN: ('gain', 0, 79)}
 CAMERAS_LIST_SERVICE = '/cameras/list'
+CAMERAS_OPEN_SERVICE = '/cameras/open'
+CAMERAS_CLOSE_SERVICE = '/cameras/close'
 
 
 def camera_control_problem(control, value):
@@ -97,8 +99,6 @@ def camera_control_problem(control, value):
     if value != CAMERA_CONTROL_AUTO and not low <= value <= high:
         return f'camera {name} must be {low}-{high}, or {CAMERA_CONTROL_AUTO}: automatic; got {value}'
     return None
-CAMERAS_OPEN_SERVICE = '/cameras/open'
-CAMERAS_CLOSE_SERVICE = '/cameras/close'
 
 
 def camera_topics(camera):

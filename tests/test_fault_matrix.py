@@ -290,8 +290,8 @@ def test_absent_ik_service_fails_without_waiting(ros_master, ros_node, fake_baxt
     assert_aborted(code, result, log, 'service_unavailable', default_block()['xy'])
     assert 'waiting up to' not in log                   # run_resuming's wait for the robot never started
     # The app's service and robot waits count wall time (SessionConfig): from the first move that needs the IK
-    # service to the failure, its 5 s service timeout and 1 s liveness check (6.2 s seen); waiting for the robot
-    # would take robot_wait_timeout (30 s) more. 15 s bounds it with room for a loaded machine.
+    # service to the failure, its 5 s service timeout and 2 s liveness window (7.2 s expected); waiting for the
+    # robot would take robot_wait_timeout (30 s) more. 15 s bounds it with room for a loaded machine.
     (asked, _, _), = log_lines(log, 'pick: servo step 1:')
     (failed, _, _), = log_lines(log, 'pick: FAILED (service_unavailable)')
     assert failed - asked < 15.0, failed - asked

@@ -19,6 +19,7 @@ from baxter_pnp.safety import ArmSafety, UnsafeCommand
 FATAL_REASONS = ('robot_stopped', 'robot_disabled', 'stream_lost', 'service_unavailable', 'robot_error', 'gripper')
 GRIPPER_TIMEOUT = 3.0     # s: a blocking open or close of the gripper waits this long
 RESTART_GRACE = 0.5       # s (wall): a disabled state waits this long for the clock jump of a restart
+LIVENESS_WINDOW = 2.0     # s (wall): a lost service is judged against the robot's streams and clock this long
 
 
 class TaskFailure(RuntimeError):
@@ -188,19 +189,25 @@ class RobotSession:
 
     def recoverable(self, error, clock_jumps_before):
         """A lost stream or a restart can end; a missing service is waited for only if the whole robot went
-        away: its clock went back since ``clock_jumps_before`` (it restarted) or its own streams stopped too."""
+        away within ``LIVENESS_WINDOW`` s: its clock went back since ``clock_jumps_before`` (it restarted) or its
+        own streams stopped too. Watched over a window, not once: a robot killed and at once restarted has its
+        old streams fresh for their max age and the new clock's jump can come a moment later."""
         if not isinstance(error, robot.ServiceUnavailable):
             return True
-        time.sleep(1.0)
-        self.clock.elapsed()
-        if self.clock.jumps > clock_jumps_before:
-            return True
-        try:
-            self.enabler.require_fresh(0.5)
-            self.limb.require_fresh(0.5)
-            return False
-        except robot.StreamLost:
-            return True
+        deadline = time.monotonic() + LIVENESS_WINDOW
+        while not rospy.is_shutdown():
+            self.clock.elapsed()
+            if self.clock.jumps > clock_jumps_before:
+                return True
+            try:
+                self.enabler.require_fresh(0.5)
+                self.limb.require_fresh(0.5)
+            except robot.StreamLost:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.05)
+        return False
 
     def wait_for_robot(self):
         """Wait until the robot streams and serves IK again, then re-enable it (unless it was e-stopped),

@@ -1,5 +1,7 @@
 """Top-face isolation (beyond the thesis): the brightest face, in V of the original image, inside a blob whose
 side faces (same hue, darker) joined it in oblique views. Contours (M, 1, 2) int32 in the pixels of the HSV image."""
+import functools
+
 import cv2
 import numpy as np
 
@@ -14,6 +16,14 @@ _DIRECTIONS = np.stack([np.cos(np.arange(_SUPPORT_DIRECTIONS) * 2.0 * np.pi / _S
 _HALF_TURNS = (np.arange(_SUPPORT_DIRECTIONS)[:, None]       # ... and the indices of each closed half-turn of them
                + np.arange(_SUPPORT_DIRECTIONS // 2 + 1)) % _SUPPORT_DIRECTIONS
 _RIM_SHADE_FRACTION = 0.03  # ... beyond _RIM_DEPTH_PX, this fraction of the face's size: its rounded rim's shaded band
+_CONVEX_SOLIDITY = 0.95     # a bright region less solid than this may be two faces (_larger_of_two_faces) ...
+_HEXAGON_EPSILONS = (0.02, 0.03, 0.04)   # _larger_of_two_faces: the outline's hexagon at the first of these
+#                                         (fractions of its length) that gives one
+_MIN_PART_SHARE = 0.1       # ... each face at least this share of the two
+# ... and the hexagon's edges (numbered from its reflex corner) parallel in pairs as a cube's are, within this angle:
+# the edge from the corner and the one two on (side face), the one before it and three on, one on and four on (top)
+_PARALLEL_EDGES = ((0, 2), (5, 3), (1, 4))
+_MAX_PARALLEL_DEG = 15.0
 _GRADIENT_MIN_PIXELS = 2000  # a blob's interior with no split: from this size (45 px across) again without its V ramp
 
 
@@ -50,14 +60,15 @@ def isolate_top_face(blob, hsv, config):
     value, saturation = hsv[box][..., 2].copy(), hsv[box][..., 1].copy()
     interior = cv2.erode(inside, _SQUARE5, borderType=cv2.BORDER_CONSTANT, borderValue=0)    # eroded by 2 px
     rim = _rim(inside)
-    face = _split_off_sides(blob, value, saturation, inside, interior, rim, (x, y), config)
+    rim_share = functools.partial(_rim_share, rim=rim, unknown=_on_the_frame(hsv.shape[:2], (x, y, w, h)))
+    face = _split_off_sides(blob, value, saturation, inside, interior, rim_share, (x, y), config)
     if face is None and cv2.countNonZero(interior) >= _GRADIENT_MIN_PIXELS:
-        face = _split_off_sides(blob, _without_gradient(value, interior), saturation, inside, interior, rim, (x, y),
-                                config)
+        face = _split_off_sides(blob, _without_gradient(value, interior), saturation, inside, interior, rim_share,
+                                (x, y), config)
     return blob if face is None else face
 
 
-def _split_off_sides(blob, value, saturation, inside, interior, rim, origin, config):
+def _split_off_sides(blob, value, saturation, inside, interior, rim_share, origin, config):
     """The top face's outline (full-image contour) split off ``blob`` by ``isolate_top_face``'s rules on the crop's
     V ``value``, or None when no split holds."""
     x, y = origin
@@ -76,19 +87,71 @@ def _split_off_sides(blob, value, saturation, inside, interior, rim, origin, con
         if bright_mean - dark_mean < config.min_contrast * bright_mean:
             break
         region = _bright_region(value, saturation, inside, interior, cut)
-        if region is None or _rim_share(region, rim) < _MIN_RIM_SHARE:
+        if region is None or rim_share(region) < _MIN_RIM_SHARE:
             break                  # a highlight, pips or a label inside the face, not a face: stop splitting
-        contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
-        outline = max(contours, key=cv2.contourArea)
-        area, hull = cv2.contourArea(outline), cv2.convexHull(outline)
-        if area < config.min_solidity * cv2.contourArea(hull):
+        outline, area, hull = _outline(region, (x, y))
+        hull_area = cv2.contourArea(hull)
+        top = None
+        if area < _CONVEX_SOLIDITY * hull_area:     # a reflex corner: two faces lit alike, or no face
+            top = _larger_of_two_faces(region, outline - (x, y), config)
+        if top is not None:
+            if rim_share(top) < _MIN_RIM_SHARE:
+                break
+            outline, area, hull = _outline(top, (x, y))
+        elif area < config.min_solidity * hull_area:
             break                  # not a face's shape (a split along shading or marks): keep the previous one
         blob_hull = cv2.convexHull(blob) if blob_hull is None else blob_hull
         if not _reaches_a_half_turn(hull, blob_hull, _RIM_DEPTH_PX + _RIM_SHADE_FRACTION * np.sqrt(area)):
             break                  # blob all around it: a highlight, glare or the shaded rim of the face, not a side
         face, values = outline, values[values > cut]
+        if top is not None:
+            break                  # the two faces' split is the last one
         histogram[:split] = 0
     return face
+
+
+def _outline(region, origin):
+    """(outline (M, 1, 2) int32 of the largest part of the mask ``region``, moved by ``origin``; its area; hull)."""
+    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=origin)
+    outline = max(contours, key=cv2.contourArea)
+    return outline, cv2.contourArea(outline), cv2.convexHull(outline)
+
+
+def _larger_of_two_faces(region, outline, config):
+    """The larger face (mask) of the bright ``region`` (mask, crop px; ``outline`` its contour) when it is two
+    faces of a block lit alike, else None: seen from a corner, a cube's top face and one side face joined make a
+    hexagon with one reflex corner (where the third, darker face meets them); the edge they share runs from it to
+    the opposite corner. Cut along that edge, both parts must be solid (``config.min_solidity``) and each at least
+    ``_MIN_PART_SHARE`` of the region. The larger part is the top face: a camera looking down within 45 deg of a
+    cube's top sees it larger than any side face (their V, lit alike, does not tell them apart)."""
+    length = cv2.arcLength(outline, True)
+    polygon = next((p for p in (cv2.approxPolyDP(outline, e * length, True).reshape(-1, 2) for e in _HEXAGON_EPSILONS)
+                    if len(p) == 6), None)
+    if polygon is None:
+        return None
+    incoming, outgoing = polygon - np.roll(polygon, 1, axis=0), np.roll(polygon, -1, axis=0) - polygon
+    turns = incoming[:, 0] * outgoing[:, 1] - incoming[:, 1] * outgoing[:, 0]
+    reflex = np.flatnonzero(np.sign(turns) != np.sign(turns.sum()))
+    if len(reflex) != 1:
+        return None
+    corner = int(reflex[0])
+    edges = np.roll(outgoing, -corner, axis=0).astype(np.float64)      # edges[k]: from the hexagon's corner + k
+    if max(_angle_deg(edges[a], edges[b]) for a, b in _PARALLEL_EDGES) > _MAX_PARALLEL_DEG:
+        return None                # not two parallelograms sharing an edge: a face with a notch (a shadow's corner)
+    parts = region.copy()
+    cv2.line(parts, tuple(int(c) for c in polygon[corner]), tuple(int(c) for c in polygon[(corner + 3) % 6]), 0, 2)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(parts, connectivity=4)
+    if count < 3:
+        return None
+    total = cv2.countNonZero(region)
+    faces = []
+    for label in 1 + np.argsort(stats[1:, cv2.CC_STAT_AREA])[::-1][:2]:
+        mask = np.where(labels == label, 255, 0).astype(np.uint8)
+        _, area, hull = _outline(mask, (0, 0))
+        if area < _MIN_PART_SHARE * total or area < config.min_solidity * cv2.contourArea(hull):
+            return None
+        faces.append(mask)
+    return faces[0]
 
 
 def _reaches_a_half_turn(face, blob, depth_px):
@@ -143,6 +206,12 @@ def _without_gradient(value, interior):
     return np.clip(value - trend + 0.5, 0, 255).astype(np.uint8)
 
 
+def _angle_deg(a, b):
+    """Angle (deg, 0-90) between the lines along the 2-vectors ``a`` and ``b``."""
+    cosine = abs(a @ b) / max(np.sqrt((a @ a) * (b @ b)), 1e-12)
+    return float(np.degrees(np.arccos(min(cosine, 1.0))))
+
+
 def _rim(inside):
     """uint8 mask of the pixels of ``inside`` within ``_RIM_DEPTH_PX`` (L2, 3x3 mask) of the nearest pixel outside
     it, the crop's border counting as outside."""
@@ -166,10 +235,28 @@ def _bright_region(value, saturation, inside, interior, threshold):
     return region
 
 
-def _rim_share(region, rim):
+def _rim_share(region, rim, unknown):
     """Fraction of the outline pixels of ``region`` that lie on the blob's ``rim``: a top face is part of the
     block's silhouette (whatever the view, at least the edges with no side face below them), a highlight, a
-    pip or a printed mark lies inside it."""
-    outline = cv2.subtract(region, cv2.erode(region, _SQUARE3))
+    pip or a printed mark lies inside it. The crop's border is outside (the blob touches it), but its pixels on
+    the image's border (``unknown``) are not counted: the block may go on beyond it."""
+    outline = cv2.subtract(region, cv2.erode(region, _SQUARE3, borderType=cv2.BORDER_CONSTANT, borderValue=0))
+    outline = cv2.subtract(outline, unknown)
     count = cv2.countNonZero(outline)
     return cv2.countNonZero(cv2.bitwise_and(outline, rim)) / count if count else 0.0
+
+
+def _on_the_frame(image_shape, box):
+    """uint8 mask (the ``box`` = (x, y, w, h) crop's size) of its rows and columns on the border of an image of
+    ``image_shape`` (h, w)."""
+    x, y, w, h = box
+    mask = np.zeros((h, w), np.uint8)
+    if x == 0:
+        mask[:, 0] = 255
+    if y == 0:
+        mask[0, :] = 255
+    if x + w == image_shape[1]:
+        mask[:, -1] = 255
+    if y + h == image_shape[0]:
+        mask[-1, :] = 255
+    return mask

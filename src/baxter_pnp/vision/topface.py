@@ -49,7 +49,9 @@ def isolate_top_face(blob, hsv, config):
     A specular highlight, a glare, white pips, a lighter patch of grain or the flat middle of a face whose
     rounded rim is shaded lie inside the face and stop the splitting; the last face kept (or the whole blob,
     one face: the lighting gradient across a face changes its V by a few per cent, a face edge by tens) is
-    returned. A blob of at least ``_GRADIENT_MIN_PIXELS`` interior pixels where no split holds is tried once more
+    returned. A bright region with a reflex corner that is a cube's top and one side face lit alike (a hexagon,
+    ``_larger_of_two_faces``) is cut along their shared edge, and its larger part is the last face. A blob of at
+    least ``_GRADIENT_MIN_PIXELS`` interior pixels where no split holds is tried once more
     with its V's linear gradient taken out (``_without_gradient``): on a close block vignetting and the light's
     fall-off change the top face's V as much as a side face lit almost as well differs from it.
     """

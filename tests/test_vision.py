@@ -377,12 +377,8 @@ def test_top_face_under_a_lower_light(camera, config):
 
 def _blob_and_hsv(faces, size=(48, 48)):
     """(outer contour of the union, HSV image) of ``faces``: [(x0, y0, x1, y1) inclusive px, V]; S = 200, H = 60."""
-    hsv = np.zeros(size + (3,), np.uint8)
-    for x0, y0, x1, y1, value in faces:
-        hsv[y0:y1 + 1, x0:x1 + 1] = (60, 200, value)
-    contours, _ = cv2.findContours(np.where(hsv[..., 2] > 0, 255, 0).astype(np.uint8), cv2.RETR_EXTERNAL,
-                                   cv2.CHAIN_APPROX_NONE)
-    return max(contours, key=cv2.contourArea), hsv
+    return _blob_and_hsv_of_polygons([(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float), value)
+                                      for x0, y0, x1, y1, value in faces], size)
 
 
 def test_a_bright_patch_with_blob_around_it_is_no_top_face(config):
@@ -410,7 +406,8 @@ def test_a_top_face_along_its_blobs_bounding_box_is_split_off(config):
 
 
 def _blob_and_hsv_of_polygons(faces, size=(120, 120)):
-    """(blob contour, HSV image) of green faces given as (corners (k, 2) px, V), drawn in order on black."""
+    """(outer contour of the union, HSV image) of faces given as (corners (k, 2) px, V), drawn in order on black;
+    S = 200, H = 60."""
     hsv = np.zeros(size + (3,), np.uint8)
     for corners, value in faces:
         cv2.fillPoly(hsv, [np.round(corners).astype(np.int32)], (60, 200, value))
@@ -420,9 +417,9 @@ def _blob_and_hsv_of_polygons(faces, size=(120, 120)):
 
 
 def test_a_cube_seen_from_a_corner_with_a_side_lit_as_the_top_gives_its_top(config):
-    """A cube from a corner: top face (1400 px^2, V 150), one side face lit alike (880 px^2, V 148), the third side
-    darker (V 90). Otsu's bright class is top and side together, a hexagon with one reflex corner (solidity under
-    ``min_solidity``); cut along their shared edge, the larger part is the top face. A face with a shadowed corner
+    """A cube from a corner: top face (1400 px^2, V 150), one side face lit alike (704 px^2, V 148), the third side
+    darker (V 90). Otsu's bright class is top and side together, a hexagon with one reflex corner (solidity 0.85,
+    kept whole as the face before); cut along their shared edge, the larger part is the top face. A face with a shadowed corner
     (an L, one reflex corner too) is not two faces: its edges are not parallel in pairs, it is not cut in two."""
     corner, along, across, down = np.array([60.0, 70.0]), np.array([40.0, -8.0]), np.array([-25.0, -30.0]), \
         np.array([-6.5, 19.0])

@@ -133,6 +133,14 @@ class Plane:
         """Angle (rad) between the normal and +z."""
         return float(np.arccos(np.clip(abs(self.normal[2]), 0.0, 1.0)))
 
+    def axes(self):
+        """``(e1, e2)``: unit axes in the plane, e1 the frame's x (its y if x is within 26 deg of the normal) less its
+        part along the normal, ``e2 = normal x e1`` (so e1, e2, normal are right-handed)."""
+        axis = np.array([1.0, 0.0, 0.0]) if abs(self.normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = axis - (axis @ self.normal) * self.normal
+        e1 /= np.linalg.norm(e1)
+        return e1, np.cross(self.normal, e1)
+
     def signed_distance(self, points):
         """Signed distance (m) of a point (3,) or points (N, 3) to the plane, positive on the normal's side."""
         return np.asarray(points, dtype=float) @ self.normal - self.offset

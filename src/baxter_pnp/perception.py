@@ -1,8 +1,8 @@
 """Perception: one camera image in -> detected blocks with their 3D pose out (no ROS).
 
 Composes the vision pipeline (``vision.detect``) with the model-based pose estimator
-(``pose.estimate_pose``; with the table plane known, ``silhouette.fit_on_table`` for the polygons it cannot pose
-well), and draws the annotated debug image. Used by ``scripts/detect_image.py``, the perception benchmark and the
+(``pose.estimate_pose``; with the table plane known, ``on_table.fit_top_face`` and ``silhouette.fit_on_table``
+for the polygons it cannot pose well), and draws the annotated debug image. Used by ``scripts/detect_image.py``, the perception benchmark and the
 pick application.
 """
 import dataclasses
@@ -12,7 +12,7 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from baxter_pnp import models, pose, silhouette, vision
+from baxter_pnp import models, on_table, pose, silhouette, vision
 
 # px: a top face split off its blob whose pose leaves a larger RMS residual has its whole blob tried too (the better
 # fit is kept): a shadow's edge across the face cut a corner off it (pick.PickConfig.max_residual_px believes 2 px)
@@ -24,7 +24,15 @@ SPLIT_FACE_MAX_RESIDUAL_PX = 2.0
 # (intersection over union): a 15-30 px polygon's size fixes its depth to centimetres only, the table to millimetres
 # (docs/perception.md, "A small block's pose from its silhouette on the table").
 SILHOUETTE_MAX_SIDE_PX = 30.0
+# Before its silhouette, such a polygon (and any under SILHOUETTE_MAX_SIDE_PX) is posed by its top face fitted on the
+# table (``on_table.fit_top_face``) when that face's shape fits within SPLIT_FACE_MAX_RESIDUAL_PX and its size is the
+# model's within TOP_FACE_SIZE_FRACTION plus TOP_FACE_SIZE_PX over its side (px): a face's edges are found to a pixel
+# or two whatever its size (the independent renderer's true 15-30 px faces: 95 % within 4.5 px of their size), a
+# block of another size differs by a fraction of it (docs/perception.md, "A small face's pose on the table").
+TOP_FACE_SIZE_FRACTION = 0.1
+TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
+ON_THE_TABLE_METHODS = ('on_table', 'silhouette')    # PoseEstimate.method of the poses taken on the table
 
 
 @dataclass
@@ -67,7 +75,8 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     smaller residual is kept): a shadow across the face (the arm's, over the block it approaches) cuts the face as a
     side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape. With a
     ``table_plane``, a polygon that got no pose or a poor one, or a small one whose pose misses the table
-    (``_on_the_table``), is posed from its silhouette on the table when that fits (method ``'silhouette'``).
+    (``_on_the_table``), is posed on the table by its top face or its silhouette when that fits (method
+    ``'on_table'`` or ``'silhouette'``).
     ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
     size = vision.validate_image(image_bgr).shape[:2]
@@ -114,22 +123,33 @@ def _polygon_observation(image_bgr, detection, vision_config, shape, side, heigh
 
 
 def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
-    """``observation`` posed from its silhouette on the table (method ``'silhouette'``: ``residual_px`` the mean gap
-    between the fitted prism's outline and the blob's, no covariance; its vertices the seen top face's) when its
-    polygon is small or got no good pose and the fit overlaps the blob by ``SILHOUETTE_MIN_OVERLAP``; else itself.
-    The shape stays the polygon's: at 15-30 px a pentagon's or a hexagon's silhouette fits a square prism's as well
-    (intersection over union 0.88-0.90)."""
+    """``observation`` posed on the table when its polygon is small (under ``SILHOUETTE_MAX_SIDE_PX``) or got no good
+    pose: by its top face fitted on the table (method ``'on_table'``, ``residual_px`` that fit's, no covariance) when
+    that face is the model's in shape and size; else, unless its own pose sits on the table (``_sits_on``), from its
+    silhouette (method ``'silhouette'``: ``residual_px`` the mean gap between the fitted prism's outline and the
+    blob's, no covariance; its vertices the seen top face's) when that overlaps the blob by
+    ``SILHOUETTE_MIN_OVERLAP``; else itself. The shape stays the polygon's: at 15-30 px a pentagon's or a hexagon's
+    silhouette fits a square prism's as well (intersection over union 0.88-0.90)."""
     detection, estimate = observation.detection, observation.pose
     polygon = detection.vertices_px
     mean_side = float(np.linalg.norm(polygon - np.roll(polygon, -1, axis=0), axis=1).mean())
-    if (estimate is not None and estimate.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
-            and (mean_side >= SILHOUETTE_MAX_SIDE_PX or _sits_on(estimate, table_plane, height))):
+    good = estimate is not None and estimate.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
+    small = mean_side < SILHOUETTE_MAX_SIDE_PX
+    if good and not small:
+        return observation
+    seen = models.seen_model(detection.shape, side, height, edge_radius)
+    face = on_table.fit_top_face(detection.vertices_px, camera, seen, table_plane)
+    if (face is not None and face.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
+            and abs(face.scale - 1.0) <= TOP_FACE_SIZE_FRACTION + TOP_FACE_SIZE_PX / face.side_px):   # its size
+        T = face.T_camera_block.copy()
+        T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
+        return BlockObservation(detection, pose.PoseEstimate(T, face.residual_px, 'on_table'))
+    if good and _sits_on(estimate, table_plane, height):
         return observation
     outline = detection.blob_contour if detection.blob_contour is not None else detection.contour
     fit = silhouette.fit_on_table(outline, camera, models.model_for(detection.shape, side, height), table_plane)
     if fit is None or fit.overlap < SILHOUETTE_MIN_OVERLAP:
         return observation
-    seen = models.seen_model(detection.shape, side, height, edge_radius)
     T = fit.T_camera_block.copy()
     T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
     vertices = camera.project(seen.vertices @ fit.T_camera_block[:3, :3].T + fit.T_camera_block[:3, 3])
@@ -165,7 +185,7 @@ def _whole_blob_observation(image_bgr, detection, vision_config, shape, side, he
 
 def annotate(image_bgr, observations, camera, axis_length=0.02):
     """Copy of the image with each block's contour, vertices, pose axes (m) and depth drawn on it (marked when the
-    pose came from the block's silhouette on the table)."""
+    pose came from the table: the block's top face or its silhouette on it)."""
     canvas = vision.draw_detections(image_bgr, [o.detection for o in observations])
     for observation in observations:
         estimate = observation.pose
@@ -175,7 +195,8 @@ def annotate(image_bgr, observations, camera, axis_length=0.02):
         tvec = estimate.T_camera_object[:3, 3].reshape(3, 1)
         cv2.drawFrameAxes(canvas, camera.K, camera.D, rvec, tvec, axis_length, 2)
         u, v = (int(round(c)) for c in observation.detection.centroid_px)
-        label = 'Z=%.1f mm%s' % (1000.0 * estimate.depth_m, ' (silhouette)' if estimate.method == 'silhouette' else '')
+        label = 'Z=%.1f mm%s' % (1000.0 * estimate.depth_m, ' (%s)' % estimate.method.replace('_', ' ')
+                                 if estimate.method in ON_THE_TABLE_METHODS else '')
         cv2.putText(canvas, label, (u + 8, v + 22),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 255), 1, cv2.LINE_AA)
     return canvas

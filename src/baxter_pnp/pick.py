@@ -127,7 +127,7 @@ class StepRecord:
     block_base_xyz: List[float]   # estimated block position in base (m)
     block_in_gripper_mm: List[float]  # estimated block centre in the gripper frame (mm): the thesis's x, y errors
     position_std_mm: Optional[float] = None   # the estimate's std along its least certain direction (mm)
-    pose_method: Optional[str] = None         # what posed the block: sqp | ippe | sqpnp | silhouette | predicted
+    pose_method: Optional[str] = None         # what posed it: sqp | ippe | sqpnp | on_table | silhouette | predicted
 
 
 @dataclass

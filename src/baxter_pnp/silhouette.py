@@ -79,10 +79,7 @@ class _Problem:
         self.camera, self.model, self.normal, self.observed = camera, model, plane.normal, observed
         self.observed_area, self.observed_perimeter = cv2.contourArea(observed), cv2.arcLength(observed, True)
         self.focal, self.principal = np.diag(camera.K)[:2], camera.K[:2, 2]
-        axis = np.array([1.0, 0.0, 0.0]) if abs(self.normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        self.e1 = axis - (axis @ self.normal) * self.normal
-        self.e1 /= np.linalg.norm(self.e1)
-        self.e2 = np.cross(self.normal, self.e1)
+        self.e1, self.e2 = plane.axes()
         ray = np.append((centre_px - self.principal) / self.focal, 1.0)
         along = self.normal @ ray
         distance = (plane.offset + 0.5 * model.height) / along if along != 0.0 else -1.0

@@ -29,12 +29,8 @@ def true_table_plane(T_camera_block, height):
 def base_of_table(table_plane_camera):
     """``(T_base_camera, table)``: a base frame whose z axis is the camera-frame ``table_plane_camera``'s normal,
     and the table top in it (level, at its offset): what the robot knows from forward kinematics."""
-    normal = table_plane_camera.normal
-    axis = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = axis - (axis @ normal) * normal
-    x /= np.linalg.norm(x)
     T_base_camera = np.eye(4)
-    T_base_camera[:3, :3] = np.array([x, np.cross(normal, x), normal])
+    T_base_camera[:3, :3] = np.array([*table_plane_camera.axes(), table_plane_camera.normal])
     return T_base_camera, Plane.level(table_plane_camera.offset)
 
 

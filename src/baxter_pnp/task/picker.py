@@ -16,6 +16,10 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
+# the log's note on a pose taken on the table (perception.ON_THE_TABLE_METHODS)
+_ON_THE_TABLE = {'on_table': ' (posed by its top face on the table)',
+                 'silhouette': ' (posed by its silhouette on the table)'}
+
 
 class Picker:
     """Picks one block at a time with a connected ``RobotSession``, its ``Motion`` and ``Eye``: ``config`` a
@@ -208,7 +212,7 @@ class Picker:
                          np.round(1000 * look.T_base_block[:3, 3], 1).tolist(),
                          '' if std is None else ' (+- %.1f mm)' % (1000 * std),
                          ' (not believably in view: its last estimate)' if look.predicted else
-                         ' (posed by its silhouette on the table)' if look.target.pose.method == 'silhouette' else ''))
+                         _ON_THE_TABLE.get(look.target.pose.method, '')))
         return translation, rotation
 
     def approach_pbvs(self):

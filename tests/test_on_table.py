@@ -1,6 +1,7 @@
 """A block's pose from its top-face polygon on a known table (``on_table.fit_top_face``) and its use in
 ``perception.observe_blocks``: polygons projected exactly (any winding and first vertex), shrunk as a rounded or
 blurred face's are, a block of another size, bad input."""
+import dataclasses
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 
 from baxter_pnp import models, on_table, perception, pose, vision
 from baxter_pnp.camera import load_default_camera
-from test_silhouette import TABLE, block_on
+from test_silhouette import TABLE, block_on, outline_of
 
 CAMERA = load_default_camera()
 
@@ -93,3 +94,28 @@ def test_observe_blocks_takes_a_small_faces_pose_from_the_table_when_it_is_the_b
         assert observation.pose.covariance is None and observation.pose.residual_px < 0.05
     else:
         assert observation.pose is estimate
+
+
+def _hexagon_detection(outline):
+    return vision.Detection('hexagon', 'green', outline, outline.mean(axis=0), 400.0, 1.0, False,
+                            np.round(outline).astype(np.int32).reshape(-1, 1, 2))
+
+
+def test_a_cube_seen_from_a_corner_as_one_hexagon_is_posed_as_the_square_asked_for():
+    """A 20 mm cube with its top and two side faces in one blob (vision's hexagon) is posed as the cube asked for, from
+    its silhouette on the table (within 0.5 mm, shape ``square``); a hexagonal block whose silhouette a cube would fit
+    as well (sides 0.6 of the cube's: overlap over 0.85) is not, its hexagon being regular on the table."""
+    cube = models.model_for('square', 0.02, 0.02)
+    T = block_on(TABLE, cube, 0.0, 0.0, 0.3)       # (0.08, -0.05, 1.1): irregularity 0.144, taken for a hexagon
+    outline = outline_of(T, cube)
+    assert len(outline) == 6
+    observation = perception._cube_seen_from_a_corner(_hexagon_detection(outline), CAMERA, 0.02, 0.02, TABLE, 0.0)
+    assert observation.detection.shape == 'square' and observation.pose.method == 'silhouette'
+    assert np.linalg.norm(observation.pose.T_camera_object[:3, 3] - T[:3, 3]) < 5e-4
+    hexagonal = models.model_for('hexagon', 0.012, 0.02)
+    T_hexagonal = block_on(TABLE, hexagonal, 0.0, 0.0, 0.3)
+    hexagon = top_face_px(T_hexagonal, hexagonal)
+    detection = dataclasses.replace(_hexagon_detection(hexagon),
+                                    blob_contour=outline_of(T_hexagonal, hexagonal).astype(np.int32).reshape(-1, 1, 2))
+    assert perception._silhouette_observation(detection, 'square', CAMERA, 0.02, 0.02, TABLE, 0.0) is not None
+    assert perception._cube_seen_from_a_corner(detection, CAMERA, 0.02, 0.02, TABLE, 0.0) is None

@@ -55,16 +55,14 @@ def fit_top_face(vertices_px, camera, model, table_plane):
     size = float(np.vdot(face, face).real)
     if not np.any(np.abs(seen) > 0.0):
         return None
-    # a similarity (z = scale * e^(i yaw)) for each pairing of the vertices, either winding; the least residual wins
-    best = None
-    for order in (seen, seen[::-1]):
-        for shift in range(model.n):
-            paired = np.roll(order, -shift)
-            z = np.vdot(face, paired) / size
-            error = float(np.sum(np.abs(paired - z * face) ** 2))
-            if best is None or error < best[0]:
-                best = (error, z, paired)
-    _, z, paired = best
+    # a similarity z = scale * e^(i yaw) for each pairing of the vertices (either winding, any first vertex) by least
+    # squares; the pairing with the least residual wins
+    pairings = (np.arange(model.n)[None, :] + np.arange(model.n)[:, None]) % model.n
+    pairings = np.concatenate([pairings, pairings[:, ::-1]])
+    candidates = seen[pairings]                                       # (2n, n)
+    z = candidates @ face.conj() / size
+    best = int(np.argmin(np.sum(np.abs(candidates - z[:, None] * face) ** 2, axis=1)))
+    z, paired = z[best], pairings[best]
     yaw = float(np.angle(z))
     x = np.cos(yaw) * e1 + np.sin(yaw) * e2
     T = np.eye(4)
@@ -72,7 +70,6 @@ def fit_top_face(vertices_px, camera, model, table_plane):
     T[:3, 3] = centre
     fitted = z * face
     projected = camera.project(centre + np.outer(fitted.real, e1) + np.outer(fitted.imag, e2))
-    observed = camera.project(centre + np.outer(paired.real, e1) + np.outer(paired.imag, e2))
-    residual = float(np.sqrt(np.mean(np.sum((projected - observed) ** 2, axis=1))))
+    residual = float(np.sqrt(np.mean(np.sum((projected - vertices[paired]) ** 2, axis=1))))
     side_px = float(np.mean(np.linalg.norm(vertices - np.roll(vertices, -1, axis=0), axis=1)))
     return TopFaceFit(T, float(abs(z)), residual, side_px)

@@ -32,7 +32,10 @@ SILHOUETTE_MAX_SIDE_PX = 30.0
 TOP_FACE_SIZE_FRACTION = 0.1
 TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
-ON_THE_TABLE_METHODS = ('on_table', 'silhouette')    # PoseEstimate.method of the poses taken on the table
+ON_THE_TABLE_METHODS = ('on_table', 'silhouette')
+# A hexagon whose cast onto the table leaves this RMS residual over its side, or more, against a regular hexagon is no
+# hexagonal block's top face; asked for a square, it is fitted as a cube seen from a corner (``_cube_seen_from_a_corner``)
+CORNER_VIEW_MIN_IRREGULARITY = 0.15    # PoseEstimate.method of the poses taken on the table
 
 
 @dataclass
@@ -76,7 +79,8 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
     side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape. With a
     ``table_plane``, a polygon that got no pose or a poor one, or a small one whose pose misses the table
     (``_on_the_table``), is posed on the table by its top face or its silhouette when that fits (method
-    ``'on_table'`` or ``'silhouette'``).
+    ``'on_table'`` or ``'silhouette'``); asked for a square, a hexagon that is no hexagonal block's top face is tried
+    as a cube seen from a corner (``_cube_seen_from_a_corner``).
     ValueError when the image is not the camera model's size (its poses would be silently wrong).
     """
     size = vision.validate_image(image_bgr).shape[:2]
@@ -90,6 +94,8 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
                                            table_plane, edge_radius)
         if observation is not None and table_plane is not None:
             observation = _on_the_table(observation, camera, side, height, table_plane, edge_radius)
+        elif table_plane is not None and (shape, detection.shape) == ('square', 'hexagon'):
+            observation = _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_radius)
         if observation is not None:
             observations.append(observation)
     return observations
@@ -126,10 +132,8 @@ def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
     """``observation`` posed on the table when its polygon is small (under ``SILHOUETTE_MAX_SIDE_PX``) or got no good
     pose: by its top face fitted on the table (method ``'on_table'``, ``residual_px`` that fit's, no covariance) when
     that face is the model's in shape and size; else, unless its own pose sits on the table (``_sits_on``), from its
-    silhouette (method ``'silhouette'``: ``residual_px`` the mean gap between the fitted prism's outline and the
-    blob's, no covariance; its vertices the seen top face's) when that overlaps the blob by
-    ``SILHOUETTE_MIN_OVERLAP``; else itself. The shape stays the polygon's: at 15-30 px a pentagon's or a hexagon's
-    silhouette fits a square prism's as well (intersection over union 0.88-0.90)."""
+    silhouette (``_silhouette_observation``); else itself. The shape stays the polygon's: at 15-30 px a pentagon's
+    or a hexagon's silhouette fits a square prism's as well (intersection over union 0.88-0.90)."""
     detection, estimate = observation.detection, observation.pose
     polygon = detection.vertices_px
     mean_side = float(np.linalg.norm(polygon - np.roll(polygon, -1, axis=0), axis=1).mean())
@@ -146,14 +150,38 @@ def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
         return BlockObservation(detection, pose.PoseEstimate(T, face.residual_px, 'on_table'))
     if good and _sits_on(estimate, table_plane, height):
         return observation
+    return _silhouette_observation(detection, detection.shape, camera, side, height, table_plane,
+                                   edge_radius) or observation
+
+
+def _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_radius):
+    """The observation of a square block of ``side`` and ``height`` (m) on the table that the hexagon ``detection``
+    may be, or None: a cube seen from a corner with its top and two side faces lit alike, vision's one blob and
+    polygon. Cast onto the table (``on_table.fit_top_face``) a hexagonal block's top face is a regular hexagon (the
+    independent renderer's from 30 px: RMS residual up to 0.14 of the side), a cube's top and side faces are not
+    (dice: 0.11-0.55); from ``CORNER_VIEW_MIN_IRREGULARITY`` on, its silhouette on the table is fitted with the
+    cube's (``_silhouette_observation``)."""
+    hexagon = on_table.fit_top_face(detection.vertices_px, camera, models.model_for('hexagon', side, height),
+                                    table_plane)
+    if hexagon is None or hexagon.residual_px < CORNER_VIEW_MIN_IRREGULARITY * hexagon.side_px:
+        return None
+    return _silhouette_observation(detection, 'square', camera, side, height, table_plane, edge_radius)
+
+
+def _silhouette_observation(detection, shape, camera, side, height, table_plane, edge_radius):
+    """``detection`` posed as a ``shape`` block from its blob's silhouette on the table (method ``'silhouette'``:
+    ``residual_px`` the mean gap between the fitted prism's outline and the blob's, no covariance; its vertices and
+    shape the seen top face's) when the fit overlaps the blob by ``SILHOUETTE_MIN_OVERLAP``; else None."""
     outline = detection.blob_contour if detection.blob_contour is not None else detection.contour
-    fit = silhouette.fit_on_table(outline, camera, models.model_for(detection.shape, side, height), table_plane)
+    fit = silhouette.fit_on_table(outline, camera, models.model_for(shape, side, height), table_plane)
     if fit is None or fit.overlap < SILHOUETTE_MIN_OVERLAP:
-        return observation
+        return None
+    seen = models.seen_model(shape, side, height, edge_radius)
     T = fit.T_camera_block.copy()
     T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
     vertices = camera.project(seen.vertices @ fit.T_camera_block[:3, :3].T + fit.T_camera_block[:3, 3])
-    seen_detection = dataclasses.replace(detection, vertices_px=vertices, centroid_px=vertices.mean(axis=0))
+    seen_detection = dataclasses.replace(detection, shape=shape, vertices_px=vertices,
+                                         centroid_px=vertices.mean(axis=0))
     return BlockObservation(seen_detection, pose.PoseEstimate(T, fit.gap_px, 'silhouette'))
 
 

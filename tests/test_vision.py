@@ -663,3 +663,20 @@ def test_no_crease_no_cut(config, case):
     else:
         image, polygon, _ = _face_with_strip(mark=case == 'a printed line inside', ramp=case.startswith('shading'))
     assert np.array_equal(vision.cut_side_faces(image, polygon, config.side_face_cut), polygon)
+
+
+def test_the_top_faces_rim_is_the_pixels_within_its_depth_of_the_outside():
+    """``topface._rim`` (erosions) marks the same pixels as OpenCV's 3x3 L2 distance transform within
+    ``_RIM_DEPTH_PX`` of an outside pixel, the crop's border outside: 300 random convex blobs with holes, 5-300 px."""
+    from baxter_pnp.vision import topface
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        h, w = (int(n) for n in rng.integers(5, 300, 2))
+        inside = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(inside, [cv2.convexHull(rng.integers(0, [w, h], (int(rng.integers(3, 9)), 2)).astype(np.int32))],
+                     255)
+        cv2.circle(inside, tuple(int(c) for c in rng.integers(0, [w, h])), int(rng.integers(1, 10)), 0, -1)
+        padded = cv2.copyMakeBorder(inside, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+        distance = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
+        expected = cv2.bitwise_and(inside, cv2.compare(distance, topface._RIM_DEPTH_PX, cv2.CMP_LE))
+        np.testing.assert_array_equal(topface._rim(inside), expected)

@@ -69,7 +69,8 @@ def test_pick_each_mode(mode, start_pose, look, camera, ros_master, ros_node, fa
         assert ('exposure 65, gain 3' in run.log()) == bool(camera), run.log()[:3000]
         assert result['success'] and result['mode'] == mode and result['failure_reason'] is None
         assert result['steps'] >= 1 and 0 < result['time_s'] < 30, run.log()[-6000:]
-        # every step says what posed the block: the configured estimator, the top face or silhouette on the table, or a prediction
+        # every step says what posed the block: the configured estimator, its top face or silhouette on the table, or a
+        # prediction
         assert {step['pose_method'] for step in result['history']} <= {'sqp', 'on_table', 'silhouette', 'predicted'}
         T_base_block = ground_truth_block()
         # the app lifts 10 cm (lift_height); 5 mm of margin for the block settling in the fingers (+1.7 mm seen)

@@ -2,8 +2,8 @@
 
 Composes the vision pipeline (``vision.detect``) with the model-based pose estimator
 (``pose.estimate_pose``; with the table plane known, ``on_table.fit_top_face`` and ``silhouette.fit_on_table``
-for the polygons it cannot pose well), and draws the annotated debug image. Used by ``scripts/detect_image.py``, the perception benchmark and the
-pick application.
+for the polygons it cannot pose well), and draws the annotated debug image. Used by ``scripts/detect_image.py``,
+the perception benchmark and the pick application.
 """
 import dataclasses
 from dataclasses import dataclass
@@ -32,10 +32,11 @@ SILHOUETTE_MAX_SIDE_PX = 30.0
 TOP_FACE_SIZE_FRACTION = 0.1
 TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
-ON_THE_TABLE_METHODS = ('on_table', 'silhouette')
-# A hexagon whose cast onto the table leaves this RMS residual over its side, or more, against a regular hexagon is no
-# hexagonal block's top face; asked for a square, it is fitted as a cube seen from a corner (``_cube_seen_from_a_corner``)
-CORNER_VIEW_MIN_IRREGULARITY = 0.15    # PoseEstimate.method of the poses taken on the table
+ON_THE_TABLE_METHODS = ('on_table', 'silhouette')    # PoseEstimate.method of the poses taken on the table
+# A hexagon whose cast onto the table leaves this RMS residual over its side, or more, against a regular hexagon is
+# no hexagonal block's top face; asked for a square, it is fitted as a cube seen from a corner
+# (``_cube_seen_from_a_corner``)
+CORNER_VIEW_MIN_IRREGULARITY = 0.15
 
 
 @dataclass

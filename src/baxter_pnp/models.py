@@ -125,6 +125,10 @@ class Plane:
         """The horizontal plane at height ``z`` (m), normal +z."""
         return cls(np.array([0.0, 0.0, 1.0]), float(z))
 
+    def raised(self, distance):
+        """This plane moved ``distance`` (m) along its normal (up: towards the camera side)."""
+        return Plane(self.normal, self.offset + distance)
+
     def z_at(self, xy):
         """Height (m) of the plane above the point ``xy`` (x, y); the normal must not be horizontal."""
         return float((self.offset - self.normal[0] * xy[0] - self.normal[1] * xy[1]) / self.normal[2])

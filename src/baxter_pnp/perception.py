@@ -142,17 +142,29 @@ def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
     small = mean_side < SILHOUETTE_MAX_SIDE_PX
     if good and not small:
         return observation
-    seen = models.seen_model(detection.shape, side, height, edge_radius)
-    face = on_table.fit_top_face(detection.vertices_px, camera, seen, table_plane)
-    if (face is not None and face.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
-            and abs(face.scale - 1.0) <= TOP_FACE_SIZE_FRACTION + TOP_FACE_SIZE_PX / face.side_px):   # its size
-        T = face.T_camera_block.copy()
-        T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
-        return BlockObservation(detection, pose.PoseEstimate(T, face.residual_px, 'on_table'))
+    on_top = top_face_on_plane(detection, camera, side, height, table_plane, edge_radius)
+    if on_top is not None:
+        return BlockObservation(detection, on_top[0])
     if good and _sits_on(estimate, table_plane, height):
         return observation
     return _silhouette_observation(detection, detection.shape, camera, side, height, table_plane,
                                    edge_radius) or observation
+
+
+def top_face_on_plane(detection, camera, side, height, plane, edge_radius=0.0):
+    """``(PoseEstimate, fit)``: ``detection``'s polygon fitted as the top face of a ``side`` x ``height`` (m) block
+    standing on ``plane`` (camera frame; ``on_table.fit_top_face``'s ``TopFaceFit``; the estimate's method
+    ``'on_table'``, its ``residual_px`` the fit's, no covariance) when that face is the model's in shape (within
+    ``SPLIT_FACE_MAX_RESIDUAL_PX``) and size (within ``TOP_FACE_SIZE_FRACTION`` plus ``TOP_FACE_SIZE_PX`` over its
+    side); else None."""
+    seen = models.seen_model(detection.shape, side, height, edge_radius)
+    face = on_table.fit_top_face(detection.vertices_px, camera, seen, plane)
+    if (face is None or face.residual_px > SPLIT_FACE_MAX_RESIDUAL_PX
+            or abs(face.scale - 1.0) > TOP_FACE_SIZE_FRACTION + TOP_FACE_SIZE_PX / face.side_px):
+        return None
+    T = face.T_camera_block.copy()
+    T[:3, :3] = pose.canonical_rotation(T[:3, :3], seen)
+    return pose.PoseEstimate(T, face.residual_px, 'on_table'), face
 
 
 def _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_radius):

@@ -24,7 +24,7 @@ from typing import List, NamedTuple, Tuple
 
 import numpy as np
 
-from baxter_pnp import pick
+from baxter_pnp import models, perception, pick
 
 SLOT_SPACING = 0.08         # m between slot centres: a 4 cm block, the open fingers (5.8 cm gap, ~1 cm paddles) fit
 CLEARANCE = 0.07            # m: a slot is free when no other block's centre is this close
@@ -248,3 +248,19 @@ def block_line(block):
             % (block.id, block.colour, block.shape, x, y, z, math.degrees(block.yaw), 1000.0 * block.std,
                block.views))
 
+
+
+def pose_on_level(detection, camera, T_base_camera, table, level, side, height, edge_radius=0.0):
+    """The ``perception.top_face_on_plane`` pose (camera frame) of ``detection``'s polygon as the top face of a
+    ``side`` x ``height`` (m) block on stack ``level`` (its bottom on ``table``, a ``models.Plane`` in base, raised by
+    ``level - 1`` heights) when it is that face in shape and size, else None. A look that checks a block put on a
+    known level tests that hypothesis: the polygon pose's depth comes from the face's size, and a pixel of rim or
+    side face in the polygon puts it 10-15 mm off from 0.3 m, beyond the level's tolerance (docs/survey.md); cast
+    onto the level, the face is where it stands within millimetres. Its size cannot tell two levels apart (one level
+    is 6 % of the size from 0.33 m, a polygon's error as much): the caller keeps the polygon pose's own level where
+    it has one."""
+    if level < 1:
+        raise ValueError(f'pose_on_level: levels start at 1, got {level}')
+    plane = models.table_plane_in_camera(T_base_camera, table.raised((level - 1) * height))
+    on_top = perception.top_face_on_plane(detection, camera, side, height, plane, edge_radius)
+    return None if on_top is None else on_top[0]

@@ -207,11 +207,15 @@ class TableTaskApplication:
         best, best_distance = None, radius
         for observation in look.observations:
             d = observation.detection
-            found = self.level(observation, look.T_base_camera)
-            if (d.shape, d.colour) != (shape, colour) or found is None or (level is not None and found != level):
+            if (d.shape, d.colour) != (shape, colour):
                 continue
-            T_base_block = look.T_base_camera @ observation.pose.T_camera_object
-            if level is not None:
+            found, estimate = self.level(observation, look.T_base_camera), observation.pose
+            if level is not None and found is None:
+                found, estimate = self.on_level(observation, look, level)
+            if found is None:
+                continue
+            T_base_block = look.T_base_camera @ estimate.T_camera_object
+            if level is not None and estimate.method != 'on_table':
                 T_base_block = table_plan.on_height(T_base_block, look.T_base_camera[:3, 3],
                                                     table.z_at(T_base_block[:2, 3]) + level * c.block_height)
             distance = float(np.linalg.norm(T_base_block[:2, 3] - np.asarray(near_xy)))
@@ -219,9 +223,22 @@ class TableTaskApplication:
                 sighting = table_map.sightings_from_look([observation], look.T_base_camera, look.frame.camera)[0]
                 if level is not None:
                     sighting = table_map.Sighting(shape, colour, T_base_block,
-                                                  table_map.lateral_std(observation.pose, look.frame.camera))
+                                                  table_map.lateral_std(estimate, look.frame.camera))
                 best, best_distance = (T_base_block, sighting), distance
         return best if best is not None else (None, None)
+
+    def on_level(self, observation, look, level):
+        """``(level, estimate)`` of an observation whose own pose is on no level (or that has none) when its polygon
+        is the top face of a block on ``level`` (``table_plan.pose_on_level``), else ``(None, None)``; logged."""
+        c = self.config
+        estimate = table_plan.pose_on_level(observation.detection, look.frame.camera, look.T_base_camera,
+                                            self.session.table, level, c.side_length, c.block_height, c.edge_radius)
+        d = observation.detection
+        rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, posed on no level by its polygon, %s'
+                      % (d.colour, d.shape, *d.centroid_px,
+                         'is on level %d by its top face' % level if estimate is not None
+                         else 'is not the top face of a block on level %d' % level))
+        return (None, None) if estimate is None else (level, estimate)
 
     @staticmethod
     def described(look):

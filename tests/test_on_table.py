@@ -96,6 +96,29 @@ def test_observe_blocks_takes_a_small_faces_pose_from_the_table_when_it_is_the_b
         assert observation.pose is estimate
 
 
+@pytest.mark.parametrize('scale, posed', [(1.03, False), (1.09, True), (0.92, True)])
+def test_a_larger_faces_pose_off_the_table_gives_way_to_its_top_face_on_the_table(scale, posed):
+    """A 40 mm square at 0.35 m (about 75 px) whose polygon came out ``scale`` times its size: a polygon pose that
+    keeps within ``TABLE_MISS_M`` of the table's height (3 %: about 10 mm) stays; one further off (8-9 %: 27-32 mm, a
+    side face or a rim in the polygon) gives way to the top face on the table (within 0.1 mm), unless blocks may
+    stand on others and it is above the table."""
+    model = models.model_for('square', 0.04, 0.02)
+    T = block_on(TABLE, model, 0.03, 0.02, 0.9)
+    vertices = top_face_px(T, model, scale)
+    estimate = pose.estimate_pose(vertices, CAMERA, model, table_plane=TABLE)
+    miss = perception._height_error_m(estimate, TABLE, 0.02)
+    assert (abs(miss) > perception.TABLE_MISS_M) == posed
+    observation = perception._on_the_table(_observation(vertices, estimate), CAMERA, 0.04, 0.02, TABLE, 0.0)
+    if posed:
+        assert observation.pose.method == 'on_table'
+        assert np.linalg.norm(observation.pose.T_camera_object[:3, 3] - T[:3, 3]) < 1e-4
+    else:
+        assert observation.pose is estimate
+    # where blocks may stand on others (a tower), a pose above the table is believed, one below it is not
+    tower = perception._on_the_table(_observation(vertices, estimate), CAMERA, 0.04, 0.02, TABLE, 0.0, towers=True)
+    assert (tower.pose is estimate) == (not posed or miss > 0)
+
+
 def _hexagon_detection(outline):
     return vision.Detection('hexagon', 'green', outline, outline.mean(axis=0), 400.0, 1.0, False,
                             np.round(outline).astype(np.int32).reshape(-1, 1, 2))

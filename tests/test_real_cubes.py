@@ -67,9 +67,10 @@ CAMERA = camera_module.CameraModel(
 KNOWN_MISSES = {}
 # Labels detected within tolerance whose pose fails a check.
 KNOWN_POSE_FAILURES = {
-    'c4-09': 'a blue square found 3.7 px off (since session 18 the weaker floor also runs beside a good detection of '
-             'its colour in the same region), its pose\'s square 4.5 px off: top-face isolation does not split off the '
-             'side face along its upper left (outline = whole blob, 1619 px^2 for a ~1200 px^2 face)',
+    'c4-09': 'a blue square found 3.7 px off: top-face isolation does not split off the side face along its upper '
+             'left (outline = whole blob, 1619 px^2 for a ~1200 px^2 face); its polygon\'s pose 15 cm too close, so '
+             'since session 26 it is posed from its silhouette on the board (depth right), two corners 6.6 and 8.1 px '
+             'off (the board\'s plane here is its mean distance, the board is tilted)',
     'c4-08': 'a red square whose left corner lies on the side face (the outline keeps part of the side face on its '
              'left: 1494 px^2 for a ~1230 px^2 face): a projected corner 6.6 px from the labelled one',
 }

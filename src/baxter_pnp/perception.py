@@ -32,6 +32,11 @@ SILHOUETTE_MAX_SIDE_PX = 30.0
 TOP_FACE_SIZE_FRACTION = 0.1
 TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
+# m: a larger polygon's good pose is kept while it puts the top face within this of the table's height (four of the
+# table height's standard deviations as a pick knows it, pick.PickConfig.table_height_sigma); beyond, its polygon
+# holds a side face or misses a rim (a real cube's pose 15 cm too close from 1 m) and it is tried on the table as a
+# poor one is (docs/perception.md, "A larger polygon off the table").
+TABLE_MISS_M = 0.02
 ON_THE_TABLE_METHODS = ('on_table', 'silhouette')    # PoseEstimate.method of the poses taken on the table
 # A hexagon whose cast onto the table leaves this RMS residual over its side, or more, against a regular hexagon is
 # no hexagonal block's top face; asked for a square, it is fitted as a cube seen from a corner
@@ -67,18 +72,19 @@ class BlockObservation:
 
 
 def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=None, colour=None,
-                   method='sqp', table_plane=None, edge_radius=0.0):
+                   method='sqp', table_plane=None, edge_radius=0.0, towers=False):
     """Detect blocks in ``image_bgr`` and estimate the pose of each.
 
     ``side`` and ``height`` (m) describe the block model, ``edge_radius`` (m) how far its top rim is rounded over
     (``models.seen_model``: 0 for sharp blocks); ``shape``/``colour`` restrict the detections (None = any).
-    ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known.
+    ``table_plane`` is the table-top ``models.Plane`` in the camera frame, if known; ``towers``: blocks may stand
+    on others (the table task's towers), so a polygon's pose above the table is not taken for a poor one.
     Returns a list of ``BlockObservation`` (pose None and ``error`` set where estimation failed). Where a top face
     split off its blob gets no pose, is not ``shape``, or is posed with a residual above
     ``SPLIT_FACE_MAX_RESIDUAL_PX``, the whole blob is tried (``vision.blob_detection``; of two poses the one with the
     smaller residual is kept): a shadow across the face (the arm's, over the block it approaches) cuts the face as a
     side face would; a blob that is not ``shape`` or gets no pose either adds nothing of another shape. With a
-    ``table_plane``, a polygon that got no pose or a poor one, or a small one whose pose misses the table
+    ``table_plane``, a polygon that got no pose or a poor one, a small one, or one whose pose misses the table
     (``_on_the_table``), is posed on the table by its top face or its silhouette when that fits (method
     ``'on_table'`` or ``'silhouette'``); asked for a square, a hexagon that is no hexagonal block's top face is tried
     as a cube seen from a corner (``_cube_seen_from_a_corner``).
@@ -94,7 +100,7 @@ def observe_blocks(image_bgr, camera, vision_config, side, height=0.02, shape=No
         observation = _polygon_observation(image_bgr, detection, vision_config, shape, side, height, camera, method,
                                            table_plane, edge_radius)
         if observation is not None and table_plane is not None:
-            observation = _on_the_table(observation, camera, side, height, table_plane, edge_radius)
+            observation = _on_the_table(observation, camera, side, height, table_plane, edge_radius, towers)
         elif table_plane is not None and (shape, detection.shape) == ('square', 'hexagon'):
             observation = _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_radius)
         if observation is not None:
@@ -129,9 +135,10 @@ def _polygon_observation(image_bgr, detection, vision_config, shape, side, heigh
     return observation
 
 
-def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
-    """``observation`` posed on the table when its polygon is small (under ``SILHOUETTE_MAX_SIDE_PX``) or got no good
-    pose: by its top face fitted on the table (method ``'on_table'``, ``residual_px`` that fit's, no covariance) when
+def _on_the_table(observation, camera, side, height, table_plane, edge_radius, towers=False):
+    """``observation`` posed on the table when its polygon is small (under ``SILHOUETTE_MAX_SIDE_PX``), got no good
+    pose or a good one more than ``TABLE_MISS_M`` off the table's height (with ``towers``, below it only): by its top
+    face fitted on the table (method ``'on_table'``, ``residual_px`` that fit's, no covariance) when
     that face is the model's in shape and size; else, unless its own pose sits on the table (``_sits_on``), from its
     silhouette (``_silhouette_observation``); else itself. The shape stays the polygon's: at 15-30 px a pentagon's
     or a hexagon's silhouette fits a square prism's as well (intersection over union 0.88-0.90)."""
@@ -141,7 +148,9 @@ def _on_the_table(observation, camera, side, height, table_plane, edge_radius):
     good = estimate is not None and estimate.residual_px <= SPLIT_FACE_MAX_RESIDUAL_PX
     small = mean_side < SILHOUETTE_MAX_SIDE_PX
     if good and not small:
-        return observation
+        miss = _height_error_m(estimate, table_plane, height)
+        if abs(miss) <= TABLE_MISS_M or (towers and miss > 0.0):
+            return observation
     on_top = top_face_on_plane(detection, camera, side, height, table_plane, edge_radius)
     if on_top is not None:
         return BlockObservation(detection, on_top[0])
@@ -196,6 +205,12 @@ def _silhouette_observation(detection, shape, camera, side, height, table_plane,
     seen_detection = dataclasses.replace(detection, shape=shape, vertices_px=vertices,
                                          centroid_px=vertices.mean(axis=0))
     return BlockObservation(seen_detection, pose.PoseEstimate(T, fit.gap_px, 'silhouette'))
+
+
+def _height_error_m(estimate, table_plane, height):
+    """How far (m) ``estimate`` puts the top face above ``height`` over ``table_plane`` (along the plane's normal;
+    negative: below)."""
+    return float(table_plane.normal @ estimate.T_camera_object[:3, 3]) - (table_plane.offset + height)
 
 
 def _sits_on(estimate, table_plane, height):

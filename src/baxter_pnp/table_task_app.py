@@ -91,7 +91,7 @@ class TableTaskApplication:
         self.outputs = Outputs(output_dir, result_json, 1, config.mode)
         self.output_dir = output_dir
         self.eye = Eye(session, vision_config, BlockQuery(None, None, config.side_length, config.block_height,
-                                                          config.estimator, session.table, config.edge_radius),
+                                                          config.estimator, session.table, config.edge_radius, towers=True),
                        views_dir=self.outputs.views_dir if session_config.save_views else None)
         self.survey = Survey(session, self.motion, self.eye, session_config.table_area)
         self.area = survey.TableRect(*session_config.table_area)

@@ -38,7 +38,8 @@ class Look(NamedTuple):
 class BlockQuery(NamedTuple):
     """What the eye looks for: a block ``shape`` (None: any) and ``colour`` (None: any), ``side_length`` and
     ``height`` (m), posed by ``estimator`` ('sqp' | 'ippe' | 'sqpnp') on the ``table`` top (a ``models.Plane`` in
-    base, e.g. ``RobotSession.table``), its top rim rounded over with ``edge_radius`` (m, ``models.seen_model``)."""
+    base, e.g. ``RobotSession.table``), its top rim rounded over with ``edge_radius`` (m, ``models.seen_model``);
+    ``towers``: blocks may stand on others (``perception.observe_blocks``)."""
     shape: Optional[str]
     colour: Optional[str]
     side_length: float
@@ -46,6 +47,7 @@ class BlockQuery(NamedTuple):
     estimator: str
     table: Plane
     edge_radius: float = 0.0
+    towers: bool = False
 
 
 class Eye:
@@ -91,7 +93,7 @@ class Eye:
         plane = table_plane_in_camera(T_base_camera, q.table)
         observations = perception.observe_blocks(frame.image_bgr, frame.camera, self.vision_config, q.side_length,
                                                  q.height, shape=q.shape, colour=q.colour, method=q.estimator,
-                                                 table_plane=plane, edge_radius=q.edge_radius)
+                                                 table_plane=plane, edge_radius=q.edge_radius, towers=q.towers)
         target = None if choose is None else choose(observations, T_base_camera, frame.camera)
         T_base_block = None if target is None else T_base_camera @ target.pose.T_camera_object
         self.show(frame, observations, T_base_block)

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Image
 
 import recorded_runs as runs
@@ -190,7 +191,8 @@ def test_a_bad_camera_info_message_is_refused(name):
 
 def test_bad_yaml_text_and_bad_numbers_in_arguments(tmp_path, capsys, thesis_view):
     """Not YAML, not a mapping, a binary file: exit 2 naming the file. --side or --height not a positive
-    number, --every 0: argparse's exit 2."""
+    number, --every 0, a table plane that is not four numbers, has no normal or the camera under it, --towers
+    without it: argparse's exit 2."""
     image_path = thesis_view[0]
     for text, message in (('K: [1, 2', 'not valid YAML'), ('- 1\n- 2\n', 'not a mapping'),
                           (b'\x89PNG\r\n\x1a\n\xff\xfe', 'not a text file')):
@@ -200,11 +202,35 @@ def test_bad_yaml_text_and_bad_numbers_in_arguments(tmp_path, capsys, thesis_vie
         assert (status, reports) == (2, []) and message in err and str(path) in err, err
     for bad in (['--side', 'inf'], ['--side', 'nan'], ['--height', '-0.02'], ['--side', '0'], ['--every', '0'],
                 ['--max-frames', '0'], ['--edge-radius', '-0.001'], ['--edge-radius', 'nan'],
-                ['--edge-radius', '0.02']):
+                ['--edge-radius', '0.02'], ['--table-plane', '0,0,-1'], ['--table-plane', '0,0,0,-0.5'],
+                ['--table-plane', '0,0,-1,0.5'], ['--table-plane', 'a,b,c,d'], ['--table-plane', 'nan,0,-1,-0.5'],
+                ['--towers']):
         with pytest.raises(SystemExit) as exit_info:
             detect_cli.main([str(image_path), '--side', str(SIDE)] + bad)
         assert exit_info.value.code == 2, bad
         assert 'detect_image.py: error:' in capsys.readouterr().err
+
+
+def test_a_table_plane_given_to_detect_image_poses_blocks_standing_on_it(tmp_path, capsys):
+    """``--table-plane``: the block's own table gives its pose (within 2 mm of the truth); a table tilted 60 deg
+    from its top face gives none (no block stands on it that way), as the pick's looks decide."""
+    camera = load_default_camera()
+    rng = np.random.default_rng(3)
+    block = synthetic.BlockSpec('square', SIDE, 0.02, GREEN)
+    T = synthetic.random_block_pose(rng, (0.2, 0.25), 15.0, camera=camera, margin_px=40, block=block)
+    path = tmp_path / 'view.png'
+    cv2.imwrite(str(path), synthetic.render_block_scene(camera, [(block, T)], rng)[0])
+    normal = T[:3, 2]
+    table = ','.join('%.9f' % v for v in (*normal, normal @ T[:3, 3] - 0.02))
+    status, reports, _ = run_cli(capsys, path, '--table-plane=' + table)      # '=': it may start with a minus
+    posed = [d for d in reports[0]['detections'] if d['position_m'] is not None]
+    assert status == 0 and len(posed) == 1
+    assert np.linalg.norm(np.subtract(posed[0]['position_m'], T[:3, 3])) < 0.002
+    tilted = Rotation.from_rotvec(np.radians(60.0) * T[:3, 0]).apply(normal)
+    status, reports, _ = run_cli(capsys, path, '--table-plane=' + ','.join(
+        '%.9f' % v for v in (*tilted, tilted @ T[:3, 3] - 0.02)))
+    assert status == 0 and all(d['position_m'] is None for d in reports[0]['detections'])
+    assert any('tilted' in (d['error'] or '') for d in reports[0]['detections'])
 
 
 # ------------------------------------------------------------------------------------------ image files

@@ -11,7 +11,8 @@ Per frame of a bag's image topic, with the CameraInfo in effect at its stamp (``
 
     {"bag": "...", "topic": "...", "stamp": s, "seq": n, "frame_id": "...", "detections": [...]}
 
-Poses are in the camera optical frame (x right, y down, z forward), metres. An image file whose size differs from
+Poses are in the camera optical frame (x right, y down, z forward), metres; with ``--table-plane`` the blocks are
+posed as standing on that table (``perception.observe_blocks``'s ``table_plane``), as the pick's looks pose them. An image file whose size differs from
 the camera model's (``--camera-info``, or the thesis calibration) gets the model scaled to it, with a warning, if
 the aspect ratios are close (``MAX_ASPECT_CHANGE``); a bag frame must have the size its CameraInfo describes.
 Exit status: 0 when every image and frame was read and posed or found empty, 1 when one could not be used (file
@@ -63,6 +64,13 @@ def parse_args(argv):
     parser.add_argument('--shape', choices=sorted(models.SHAPES), help='only this shape')
     parser.add_argument('--colour', '--color', dest='colour', help='only this colour (a name in the vision config)')
     parser.add_argument('--method', choices=['sqp', 'ippe', 'sqpnp'], default='sqp', help='pose estimator')
+    parser.add_argument('--table-plane', metavar='NX,NY,NZ,D',
+                        help='the table top in the camera optical frame: the points X with N . X = D (m; N towards '
+                             'the camera, so D < 0), e.g. 0,0,-1,-0.5 for a camera 0.5 m straight above it (write '
+                             '--table-plane=... when N starts with a minus): blocks are then posed as standing on '
+                             'it, as the pick does (default: no table)')
+    parser.add_argument('--towers', action='store_true',
+                        help='with --table-plane: blocks may stand on others (a pose above the table is kept)')
     parser.add_argument('--vision-config', metavar='YAML', help='vision parameters (default config/vision.yaml)')
     parser.add_argument('--json', action='store_true', help='print one JSON object per image or frame')
     parser.add_argument('--annotate', metavar='OUT_DIR',
@@ -77,7 +85,29 @@ def parse_args(argv):
         parser.error('--edge-radius: %s' % exc)
     if args.every < 1 or (args.max_frames is not None and args.max_frames < 1):
         parser.error('--every and --max-frames must be at least 1')
+    if args.table_plane is not None:
+        try:
+            args.table_plane = parse_table_plane(args.table_plane)
+        except ValueError as exc:
+            parser.error('--table-plane: %s' % exc)
+    elif args.towers:
+        parser.error('--towers needs --table-plane')
     return args
+
+
+def parse_table_plane(text):
+    """``models.Plane`` of ``'NX,NY,NZ,D'`` (camera optical frame, m); ValueError unless four finite numbers with a
+    non-zero normal that put the camera on the side the normal points to (D < 0 once the normal is unit)."""
+    try:
+        values = [float(v) for v in text.split(',')]
+    except ValueError:
+        raise ValueError(f'expected four numbers NX,NY,NZ,D, got {text!r}') from None
+    if len(values) != 4:
+        raise ValueError(f'expected four numbers NX,NY,NZ,D, got {len(values)}')
+    plane = models.Plane(values[:3], values[3])      # ValueError: a zero or non-finite normal, a non-finite D
+    if plane.signed_distance([0.0, 0.0, 0.0]) <= 0.0:
+        raise ValueError(f'the camera must be on the side the normal points to (N . 0 - D > 0), got {text!r}')
+    return plane
 
 
 def main(argv=None):
@@ -181,7 +211,8 @@ class _Detector:
     def _observe(self, image, camera):
         args = self.args
         return perception.observe_blocks(image, camera, self.config, args.side, args.height, shape=args.shape,
-                                         colour=args.colour, method=args.method, edge_radius=args.edge_radius)
+                                         colour=args.colour, method=args.method, edge_radius=args.edge_radius,
+                                         table_plane=args.table_plane, towers=args.towers)
 
     def _report(self, head, label, observations, image, camera, annotated_name):
         report = dict(head, detections=[o.to_json() for o in observations])

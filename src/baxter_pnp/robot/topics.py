@@ -16,7 +16,9 @@ import rospy
 from baxter_pnp.robot.errors import RobotError, RobotTimeout, ServiceUnavailable, StreamLost
 from baxter_pnp.robot.sdk import COMMAND_RATE_HZ
 
-ROBOT_TIME_BACKSTOP = 10.0     # a wait in robot time gives up after this many times its timeout of wall time
+ROBOT_TIME_BACKSTOP = 10.0     # a wait in robot time gives up after this many times its timeout of wall time ...
+ROBOT_TIME_WALL_FLOOR = 1.0    # ... and not before this much wall time (s, at most its timeout): an unpaced
+#                                simulator's clock can pass a whole timeout between two of its state messages
 DEFAULT_MAX_AGE = 0.5          # s: a robot stream older than this is considered lost
 
 
@@ -25,13 +27,18 @@ def wait_until(condition, timeout, body=None, rate_hz=COMMAND_RATE_HZ, robot_tim
 
     With ``robot_time`` the timeout counts ROS time (the robot's: a simulator running slower than real
     time gets the same motion time as a real robot), with a wall-clock backstop of
-    ``ROBOT_TIME_BACKSTOP`` x ``timeout`` in case the robot's clock stops."""
-    deadline = time.monotonic() + (ROBOT_TIME_BACKSTOP * timeout if robot_time else timeout)
+    ``ROBOT_TIME_BACKSTOP`` x ``timeout`` in case the robot's clock stops, and a wall-clock floor of
+    ``ROBOT_TIME_WALL_FLOOR`` (at most ``timeout``) in case it runs far ahead of the wall (an unpaced simulator on
+    a loaded machine: 12 s of its time in 70 ms, before the state that answers reached this process)."""
+    start = time.monotonic()
+    deadline = start + (ROBOT_TIME_BACKSTOP * timeout if robot_time else timeout)
+    floor = start + min(timeout, ROBOT_TIME_WALL_FLOOR)
     robot_deadline = rospy.get_time() + timeout if robot_time else None
     while not condition():
         if rospy.is_shutdown():
             raise RobotError('ROS is shutting down')
-        if time.monotonic() > deadline or (robot_time and rospy.get_time() > robot_deadline):
+        now = time.monotonic()
+        if now > deadline or (robot_time and rospy.get_time() > robot_deadline and now > floor):
             return False
         if body is not None:
             body()

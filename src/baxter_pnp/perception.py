@@ -32,10 +32,11 @@ SILHOUETTE_MAX_SIDE_PX = 30.0
 TOP_FACE_SIZE_FRACTION = 0.1
 TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
-# m: a larger polygon's good pose is kept while it puts the top face within this of the table's height (four of the
-# table height's standard deviations as a pick knows it, pick.PickConfig.table_height_sigma); beyond, its polygon
-# holds a side face or misses a rim (a real cube's pose 15 cm too close from 1 m) and it is tried on the table as a
-# poor one is (docs/perception.md, "A larger polygon off the table").
+# m: a larger polygon's good pose is kept while it puts the top face within this of the table's height (the pick's
+# max_height_error, beyond which its height rule refuses a certain pose; four of the table height's standard
+# deviations, table_height_sigma); beyond, its polygon holds a side face or misses a rim (a real cube's pose 15 cm
+# too close from 1 m) and it is tried on the table as a poor one is (docs/perception.md, "A larger polygon off the
+# table").
 TABLE_MISS_M = 0.02
 ON_THE_TABLE_METHODS = ('on_table', 'silhouette')    # PoseEstimate.method of the poses taken on the table
 # A hexagon whose cast onto the table leaves this RMS residual over its side, or more, against a regular hexagon is

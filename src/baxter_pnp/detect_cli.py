@@ -12,9 +12,10 @@ Per frame of a bag's image topic, with the CameraInfo in effect at its stamp (``
     {"bag": "...", "topic": "...", "stamp": s, "seq": n, "frame_id": "...", "detections": [...]}
 
 Poses are in the camera optical frame (x right, y down, z forward), metres; with ``--table-plane`` the blocks are
-posed as standing on that table (``perception.observe_blocks``'s ``table_plane``), as the pick's looks pose them. An image file whose size differs from
-the camera model's (``--camera-info``, or the thesis calibration) gets the model scaled to it, with a warning, if
-the aspect ratios are close (``MAX_ASPECT_CHANGE``); a bag frame must have the size its CameraInfo describes.
+posed as standing on that table (``perception.observe_blocks``'s ``table_plane``), as the pick's looks pose them.
+An image file whose size differs from the camera model's (``--camera-info``, or the thesis calibration) gets the
+model scaled to it, with a warning, if the aspect ratios are close (``MAX_ASPECT_CHANGE``); a bag frame must have
+the size its CameraInfo describes.
 Exit status: 0 when every image and frame was read and posed or found empty, 1 when one could not be used (file
 unreadable, corrupt bag, bad encoding, size or camera_info), 2 on bad arguments or configuration (unknown topic:
 the bag's topics are listed).

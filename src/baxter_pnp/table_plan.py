@@ -249,6 +249,31 @@ def block_line(block):
                block.views))
 
 
+def level_of_pose(pose, T_base_camera, table, config):
+    """The stack level (1: on the table) of a believable ``pose.PoseEstimate`` (camera frame; ``T_base_camera`` the
+    camera's pose in base, ``table`` the table top, a ``models.Plane`` in base, ``config`` a ``TableTaskConfig``),
+    None for an estimate not to trust: none, a residual over ``max_residual_px``, a top face farther than
+    ``level_tolerance`` from every level's height, or above ``max_level``."""
+    if pose is None or pose.residual_px > config.max_residual_px:
+        return None
+    position = (T_base_camera @ pose.T_camera_object)[:3, 3]
+    level = level_of(position[2], table.z_at(position[:2]), config.block_height, config.level_tolerance)
+    return level if level is not None and level <= config.max_level else None
+
+
+def on_level(observation, camera, T_base_camera, table, level, config):
+    """``(pose, by_top_face)``: ``observation``'s (a ``perception.BlockObservation``) pose when it is on stack
+    ``level`` (``level_of_pose``); when its own pose is on no level (or it has none), ``pose_on_level``'s (its
+    polygon as that level's top face), ``by_top_face`` True; else ``(None, False)``: a pose on another level stays
+    there."""
+    found = level_of_pose(observation.pose, T_base_camera, table, config)
+    if found is not None:
+        return (observation.pose if found == level else None), False
+    pose = pose_on_level(observation.detection, camera, T_base_camera, table, level, config.side_length,
+                         config.block_height, config.edge_radius)
+    return pose, pose is not None
+
+
 
 def pose_on_level(detection, camera, T_base_camera, table, level, side, height, edge_radius=0.0):
     """The ``perception.top_face_on_plane`` pose (camera frame) of ``detection``'s polygon as the top face of a

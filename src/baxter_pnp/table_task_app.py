@@ -90,8 +90,9 @@ class TableTaskApplication:
         self.motion = Motion(session)
         self.outputs = Outputs(output_dir, result_json, 1, config.mode)
         self.output_dir = output_dir
-        self.eye = Eye(session, vision_config, BlockQuery(None, None, config.side_length, config.block_height,
-                                                          config.estimator, session.table, config.edge_radius, towers=True),
+        query = BlockQuery(None, None, config.side_length, config.block_height, config.estimator, session.table,
+                           config.edge_radius, towers=True)
+        self.eye = Eye(session, vision_config, query,
                        views_dir=self.outputs.views_dir if session_config.save_views else None)
         self.survey = Survey(session, self.motion, self.eye, session_config.table_area)
         self.area = survey.TableRect(*session_config.table_area)
@@ -156,16 +157,9 @@ class TableTaskApplication:
 
     # ================================================================================ looking
     def level(self, observation, T_base_camera):
-        """The stack level (1: on the table) of a believable observation, None for an estimate not to trust (a
-        large residual, a top face farther than ``level_tolerance`` from every level's height, above
-        ``max_level``)."""
-        c, pose = self.config, observation.pose
-        if pose is None or pose.residual_px > c.max_residual_px:
-            return None
-        position = (T_base_camera @ pose.T_camera_object)[:3, 3]
-        level = table_plan.level_of(position[2], self.session.table.z_at(position[:2]), c.block_height,
-                                    c.level_tolerance)
-        return level if level is not None and level <= c.max_level else None
+        """The stack level of a believable observation, None for an estimate not to trust
+        (``table_plan.level_of_pose``)."""
+        return table_plan.level_of_pose(observation.pose, T_base_camera, self.session.table, self.config)
 
     def survey_table(self):
         """A survey (``task.survey``) into a new table map, printed one line a block."""
@@ -202,17 +196,23 @@ class TableTaskApplication:
         """(T_base_block, its ``table_map.Sighting``) of the look's ``shape`` ``colour`` block on ``level`` (None:
         any) nearest ``near_xy`` within ``radius`` (m), or (None, None). On a given level, its estimate is moved
         along its viewing ray onto that level's height (``table_plan.on_height``: a depth error, and the lateral
-        error that comes with it, removed; the sighting keeps the lateral error, ``table_map.lateral_std``)."""
+        error that comes with it, removed; the sighting keeps the lateral error, ``table_map.lateral_std``); one whose
+        polygon's pose is on no level is posed on it by its top face where that fits (``table_plan.on_level``)."""
         c, table = self.config, self.session.table
         best, best_distance = None, radius
         for observation in look.observations:
             d = observation.detection
             if (d.shape, d.colour) != (shape, colour):
                 continue
-            found, estimate = self.level(observation, look.T_base_camera), observation.pose
-            if level is not None and found is None:
-                found, estimate = self.on_level(observation, look, level)
-            if found is None:
+            if level is None:
+                estimate = observation.pose if self.level(observation, look.T_base_camera) is not None else None
+            else:
+                estimate, by_top_face = table_plan.on_level(observation, look.frame.camera, look.T_base_camera,
+                                                            table, level, c)
+                if by_top_face:
+                    rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, on no level by its polygon\'s pose, is '
+                                  'on level %d by its top face' % (d.colour, d.shape, *d.centroid_px, level))
+            if estimate is None:
                 continue
             T_base_block = look.T_base_camera @ estimate.T_camera_object
             if level is not None and estimate.method != 'on_table':
@@ -226,19 +226,6 @@ class TableTaskApplication:
                                                   table_map.lateral_std(estimate, look.frame.camera))
                 best, best_distance = (T_base_block, sighting), distance
         return best if best is not None else (None, None)
-
-    def on_level(self, observation, look, level):
-        """``(level, estimate)`` of an observation whose own pose is on no level (or that has none) when its polygon
-        is the top face of a block on ``level`` (``table_plan.pose_on_level``), else ``(None, None)``; logged."""
-        c = self.config
-        estimate = table_plan.pose_on_level(observation.detection, look.frame.camera, look.T_base_camera,
-                                            self.session.table, level, c.side_length, c.block_height, c.edge_radius)
-        d = observation.detection
-        rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, posed on no level by its polygon, %s'
-                      % (d.colour, d.shape, *d.centroid_px,
-                         'is on level %d by its top face' % level if estimate is not None
-                         else 'is not the top face of a block on level %d' % level))
-        return (None, None) if estimate is None else (level, estimate)
 
     @staticmethod
     def described(look):

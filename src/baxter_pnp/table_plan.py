@@ -263,12 +263,16 @@ def level_of_pose(pose, T_base_camera, table, config):
 
 def on_level(observation, camera, T_base_camera, table, level, config):
     """``(pose, by_top_face)``: ``observation``'s (a ``perception.BlockObservation``) pose when it is on stack
-    ``level`` (``level_of_pose``); when its own pose is on no level (or it has none), ``pose_on_level``'s (its
-    polygon as that level's top face), ``by_top_face`` True; else ``(None, False)``: a pose on another level stays
-    there."""
+    ``level`` (``level_of_pose``); when its own pose is on no level, or one level off, or it has none,
+    ``pose_on_level``'s (its polygon as that level's top face) if that fits, ``by_top_face`` True; else
+    ``(None, False)``. A look checks the level a block was put on: a pose 10-15 mm off lands on the next level (every
+    height is within ``level_tolerance``, half a block, of some level), and the face's size cannot tell two
+    neighbouring levels apart (one level is 6 % of it from 0.33 m); a pose two levels off stays there."""
     found = level_of_pose(observation.pose, T_base_camera, table, config)
-    if found is not None:
-        return (observation.pose if found == level else None), False
+    if found == level:
+        return observation.pose, False
+    if found is not None and abs(found - level) > 1:
+        return None, False
     pose = pose_on_level(observation.detection, camera, T_base_camera, table, level, config.side_length,
                          config.block_height, config.edge_radius)
     return pose, pose is not None
@@ -282,8 +286,7 @@ def pose_on_level(detection, camera, T_base_camera, table, level, side, height, 
     known level tests that hypothesis: the polygon pose's depth comes from the face's size, and a pixel of rim or
     side face in the polygon puts it 10-15 mm off from 0.3 m, beyond the level's tolerance (docs/survey.md); cast
     onto the level, the face is where it stands within millimetres. Its size cannot tell two levels apart (one level
-    is 6 % of the size from 0.33 m, a polygon's error as much): the caller keeps the polygon pose's own level where
-    it has one."""
+    is 6 % of the size from 0.33 m, a polygon's error as much): the look's knowledge of the level is the test.""" 
     if level < 1:
         raise ValueError(f'pose_on_level: levels start at 1, got {level}')
     plane = models.table_plane_in_camera(T_base_camera, table.raised((level - 1) * height))

@@ -191,3 +191,23 @@ def test_a_look_checking_a_level_believes_a_block_there_and_not_two_levels_off(l
     assert table_plan.on_level(two_up, camera, T_base_camera, table, level, config) == (None, False)
     noisy = perception.BlockObservation(exact.detection, dataclasses.replace(exact.pose, residual_px=2.5))
     assert table_plan.level_of_pose(noisy.pose, T_base_camera, table, config) is None
+
+
+def test_a_block_whose_polygon_keeps_a_side_face_is_posed_on_its_level_by_its_silhouette():
+    """A block on level 2 whose polygon is its blob's (top face and the side faces seen: no square) is no top face
+    on the level, but its silhouette is the block's standing there: posed within 1.5 mm."""
+    import cv2
+    from baxter_pnp import models, perception, vision
+    camera, table, T_base_camera = level_scene()
+    model = models.model_for('square', SIDE, HEIGHT)
+    _, T = square_on_level(camera, T_base_camera, 2, 1.0)
+    top = model.vertices @ T[:3, :3].T + T[:3, 3]
+    outline = cv2.convexHull(camera.project(np.vstack([top, top - HEIGHT * T[:3, 2]])).astype(np.float32))
+    polygon = cv2.approxPolyDP(outline, 3.0, True).reshape(-1, 2).astype(float)[:4]     # four of its corners
+    detection = vision.Detection('square', 'red', polygon, polygon.mean(axis=0), 900.0, 1.0, False,
+                                 np.round(outline).astype(np.int32))
+    level_2 = models.table_plane_in_camera(T_base_camera, table.raised(HEIGHT))
+    assert perception.top_face_on_plane(detection, camera, SIDE, HEIGHT, level_2) is None
+    estimate = table_plan.pose_on_level(detection, camera, T_base_camera, table, 2, SIDE, HEIGHT)
+    assert estimate is not None and estimate.method == 'silhouette'
+    assert np.linalg.norm(estimate.T_camera_object[:3, 3] - T[:3, 3]) < 0.0015

@@ -177,6 +177,17 @@ def top_face_on_plane(detection, camera, side, height, plane, edge_radius=0.0):
     return pose.PoseEstimate(T, face.residual_px, 'on_table'), face
 
 
+def pose_on_plane(detection, camera, side, height, plane, edge_radius=0.0):
+    """The pose (``PoseEstimate``, camera frame) of ``detection`` as a ``side`` x ``height`` (m) block standing on
+    ``plane`` (camera frame): by its top face (``top_face_on_plane``) where that fits, else by its silhouette
+    (``_silhouette_observation``: the blob's outline with the side faces it shows) where that does; else None."""
+    on_top = top_face_on_plane(detection, camera, side, height, plane, edge_radius)
+    if on_top is not None:
+        return on_top[0]
+    observation = _silhouette_observation(detection, detection.shape, camera, side, height, plane, edge_radius)
+    return None if observation is None else observation.pose
+
+
 def _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_radius):
     """The observation of a square block of ``side`` and ``height`` (m) on the table that the hexagon ``detection``
     may be, or None: a cube seen from a corner with its top and two side faces lit alike, vision's one blob and

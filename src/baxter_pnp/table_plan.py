@@ -264,7 +264,7 @@ def level_of_pose(pose, T_base_camera, table, config):
 def on_level(observation, camera, T_base_camera, table, level, config):
     """``(pose, by_top_face)``: ``observation``'s (a ``perception.BlockObservation``) pose when it is on stack
     ``level`` (``level_of_pose``); when its own pose is on no level, or one level off, or it has none,
-    ``pose_on_level``'s (its polygon as that level's top face) if that fits, ``by_top_face`` True; else
+    ``pose_on_level``'s (its top face or silhouette on that level) if that fits, ``by_top_face`` True; else
     ``(None, False)``. A look checks the level a block was put on: a pose 10-15 mm off lands on the next level (every
     height is within ``level_tolerance``, half a block, of some level), and the face's size cannot tell two
     neighbouring levels apart (one level is 6 % of it from 0.33 m); a pose two levels off stays there."""
@@ -280,9 +280,10 @@ def on_level(observation, camera, T_base_camera, table, level, config):
 
 
 def pose_on_level(detection, camera, T_base_camera, table, level, side, height, edge_radius=0.0):
-    """The ``perception.top_face_on_plane`` pose (camera frame) of ``detection``'s polygon as the top face of a
-    ``side`` x ``height`` (m) block on stack ``level`` (its bottom on ``table``, a ``models.Plane`` in base, raised by
-    ``level - 1`` heights) when it is that face in shape and size, else None. A look that checks a block put on a
+    """The ``perception.pose_on_plane`` pose (camera frame) of ``detection`` as a ``side`` x ``height`` (m) block on
+    stack ``level`` (its bottom on ``table``, a ``models.Plane`` in base, raised by ``level - 1`` heights): its polygon
+    as that level's top face where it is that face in shape and size, else its blob's silhouette (top and side faces:
+    a side face kept in the polygon) where that fits; else None. A look that checks a block put on a
     known level tests that hypothesis: the polygon pose's depth comes from the face's size, and a pixel of rim or
     side face in the polygon puts it 10-15 mm off from 0.3 m, beyond the level's tolerance (docs/survey.md); cast
     onto the level, the face is where it stands within millimetres. Its size cannot tell two levels apart (one level
@@ -290,5 +291,4 @@ def pose_on_level(detection, camera, T_base_camera, table, level, side, height, 
     if level < 1:
         raise ValueError(f'pose_on_level: levels start at 1, got {level}')
     plane = models.table_plane_in_camera(T_base_camera, table.raised((level - 1) * height))
-    on_top = perception.top_face_on_plane(detection, camera, side, height, plane, edge_radius)
-    return None if on_top is None else on_top[0]
+    return perception.pose_on_plane(detection, camera, side, height, plane, edge_radius)

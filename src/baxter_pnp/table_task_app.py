@@ -23,7 +23,7 @@ from typing import List, Optional
 import numpy as np
 import rospy
 
-from baxter_pnp import pick, survey, table_map, table_plan, vision
+from baxter_pnp import perception, pick, survey, table_map, table_plan, vision
 from baxter_pnp.params import ParameterError
 from baxter_pnp.runtime import PACKAGE_ROOT, command_summary
 from baxter_pnp.table_plan import PlanError, TableTaskConfig
@@ -210,12 +210,13 @@ class TableTaskApplication:
                 estimate, by_top_face = table_plan.on_level(observation, look.frame.camera, look.T_base_camera,
                                                             table, level, c)
                 if by_top_face:
-                    rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, on no level by its polygon\'s pose, is '
-                                  'on level %d by its top face' % (d.colour, d.shape, *d.centroid_px, level))
+                    rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, off level %d by its polygon\'s pose, is '
+                                  'on it by its %s' % (d.colour, d.shape, *d.centroid_px, level,
+                                                       'silhouette' if estimate.method == 'silhouette' else 'top face'))
             if estimate is None:
                 continue
             T_base_block = look.T_base_camera @ estimate.T_camera_object
-            if level is not None and estimate.method != 'on_table':
+            if level is not None and estimate.method not in perception.ON_THE_TABLE_METHODS:
                 T_base_block = table_plan.on_height(T_base_block, look.T_base_camera[:3, 3],
                                                     table.z_at(T_base_block[:2, 3]) + level * c.block_height)
             distance = float(np.linalg.norm(T_base_block[:2, 3] - np.asarray(near_xy)))

@@ -184,8 +184,8 @@ def test_a_look_checking_a_level_believes_a_block_there_and_not_two_levels_off(l
     assert table_plan.on_level(exact, camera, T_base_camera, table, level, config) == (exact.pose, False)
     small, T_true = observation(level, 0.95)
     assert table_plan.level_of_pose(small.pose, T_base_camera, table, config) == (None if level == 1 else level - 1)
-    estimate, by_top_face = table_plan.on_level(small, camera, T_base_camera, table, level, config)
-    assert by_top_face and np.linalg.norm(estimate.T_camera_object[:3, 3] - T_true[:3, 3]) < 0.001
+    estimate, refitted = table_plan.on_level(small, camera, T_base_camera, table, level, config)
+    assert refitted and np.linalg.norm(estimate.T_camera_object[:3, 3] - T_true[:3, 3]) < 0.001
     two_up, _ = observation(level + 2, 1.0)
     assert table_plan.level_of_pose(two_up.pose, T_base_camera, table, config) == level + 2
     assert table_plan.on_level(two_up, camera, T_base_camera, table, level, config) == (None, False)

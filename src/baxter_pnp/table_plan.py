@@ -262,9 +262,9 @@ def level_of_pose(pose, T_base_camera, table, config):
 
 
 def on_level(observation, camera, T_base_camera, table, level, config):
-    """``(pose, by_top_face)``: ``observation``'s (a ``perception.BlockObservation``) pose when it is on stack
+    """``(pose, refitted)``: ``observation``'s (a ``perception.BlockObservation``) pose when it is on stack
     ``level`` (``level_of_pose``); when its own pose is on no level, or one level off, or it has none,
-    ``pose_on_level``'s (its top face or silhouette on that level) if that fits, ``by_top_face`` True; else
+    ``pose_on_level``'s (its top face or silhouette on that level) if that fits, ``refitted`` True; else
     ``(None, False)``. A look checks the level a block was put on: a pose 10-15 mm off lands on the next level (every
     height is within ``level_tolerance``, half a block, of some level), and the face's size cannot tell two
     neighbouring levels apart (one level is 6 % of it from 0.33 m); a pose two levels off stays there."""
@@ -278,16 +278,15 @@ def on_level(observation, camera, T_base_camera, table, level, config):
     return pose, pose is not None
 
 
-
 def pose_on_level(detection, camera, T_base_camera, table, level, side, height, edge_radius=0.0):
     """The ``perception.pose_on_plane`` pose (camera frame) of ``detection`` as a ``side`` x ``height`` (m) block on
     stack ``level`` (its bottom on ``table``, a ``models.Plane`` in base, raised by ``level - 1`` heights): its polygon
     as that level's top face where it is that face in shape and size, else its blob's silhouette (top and side faces:
-    a side face kept in the polygon) where that fits; else None. A look that checks a block put on a
-    known level tests that hypothesis: the polygon pose's depth comes from the face's size, and a pixel of rim or
-    side face in the polygon puts it 10-15 mm off from 0.3 m, beyond the level's tolerance (docs/survey.md); cast
-    onto the level, the face is where it stands within millimetres. Its size cannot tell two levels apart (one level
-    is 6 % of the size from 0.33 m, a polygon's error as much): the look's knowledge of the level is the test.""" 
+    a side face kept in the polygon) where that fits; else None. A look that checks a block put on a known level
+    tests that hypothesis: the polygon pose's depth comes from the face's size, and a pixel of rim or side face in
+    the polygon puts it 10-15 mm off from 0.3 m, on no level or the next one (docs/survey.md); fitted on the level,
+    the block is where it stands within millimetres. Its size cannot tell two levels apart (one level is 6 % of the
+    size from 0.33 m, a polygon's error as much): the look's knowledge of the level is the test."""
     if level < 1:
         raise ValueError(f'pose_on_level: levels start at 1, got {level}')
     plane = models.table_plane_in_camera(T_base_camera, table.raised((level - 1) * height))

@@ -197,7 +197,8 @@ class TableTaskApplication:
         any) nearest ``near_xy`` within ``radius`` (m), or (None, None). On a given level, its estimate is moved
         along its viewing ray onto that level's height (``table_plan.on_height``: a depth error, and the lateral
         error that comes with it, removed; the sighting keeps the lateral error, ``table_map.lateral_std``); one whose
-        polygon's pose is on no level is posed on it by its top face where that fits (``table_plan.on_level``)."""
+        polygon's pose is on no level or one level off is posed on it by its top face or silhouette where that fits
+        (``table_plan.on_level``)."""
         c, table = self.config, self.session.table
         best, best_distance = None, radius
         for observation in look.observations:
@@ -207,9 +208,9 @@ class TableTaskApplication:
             if level is None:
                 estimate = observation.pose if self.level(observation, look.T_base_camera) is not None else None
             else:
-                estimate, by_top_face = table_plan.on_level(observation, look.frame.camera, look.T_base_camera,
+                estimate, refitted = table_plan.on_level(observation, look.frame.camera, look.T_base_camera,
                                                             table, level, c)
-                if by_top_face:
+                if refitted:
                     rospy.loginfo('table_task: the %s %s at (%.0f, %.0f) px, off level %d by its polygon\'s pose, is '
                                   'on it by its %s' % (d.colour, d.shape, *d.centroid_px, level,
                                                        'silhouette' if estimate.method == 'silhouette' else 'top face'))

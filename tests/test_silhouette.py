@@ -60,11 +60,11 @@ def test_a_cubes_pose_comes_back_from_its_outline(faces, u, v, yaw):
 
 
 def test_a_block_of_another_size_does_not_fit():
-    """The outline of a 26 mm cube fitted with a 20 mm model: overlap under observe_blocks' 0.85."""
+    """The outline of a 26 mm cube fitted with a 20 mm model: overlap under what observe_blocks takes."""
     T = block_on(TABLE, models.model_for('square', 0.026, 0.026), 0.02, 0.01, 0.4)
     outline = outline_of(T, models.model_for('square', 0.026, 0.026))
     fit = silhouette.fit_on_table(outline, CAMERA, models.model_for('square', 0.02, 0.02), TABLE)
-    assert fit.overlap < perception.SILHOUETTE_MIN_OVERLAP
+    assert fit.overlap < perception.silhouette_min_overlap(np.asarray(outline, np.float32).reshape(-1, 1, 2))
 
 
 def test_degenerate_outlines_and_a_table_behind_give_none():

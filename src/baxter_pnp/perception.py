@@ -21,8 +21,9 @@ SPLIT_FACE_MAX_RESIDUAL_PX = 2.0
 # SPLIT_FACE_MAX_RESIDUAL_PX, or whose polygon's mean side is under SILHOUETTE_MAX_SIDE_PX (px) and its pose misses
 # the table's height by more than three of its stds, is posed from its silhouette on the table
 # (``silhouette.fit_on_table``) when that fit overlaps its blob's outline by at least SILHOUETTE_MIN_OVERLAP
-# (intersection over union): a 15-30 px polygon's size fixes its depth to centimetres only, the table to millimetres
-# (docs/perception.md, "A small block's pose from its silhouette on the table").
+# (intersection over union), or, for a small blob, as much as outlines SILHOUETTE_SLACK_PX apart all round do
+# (``silhouette_min_overlap``): a 15-30 px polygon's size fixes its depth to centimetres only, the table to
+# millimetres (docs/perception.md, "A small block's pose from its silhouette on the table").
 SILHOUETTE_MAX_SIDE_PX = 30.0
 # Before its silhouette, such a polygon (and any under SILHOUETTE_MAX_SIDE_PX) is posed by its top face fitted on the
 # table (``on_table.fit_top_face``) when that face's shape fits within SPLIT_FACE_MAX_RESIDUAL_PX and its size is the
@@ -32,6 +33,7 @@ SILHOUETTE_MAX_SIDE_PX = 30.0
 TOP_FACE_SIZE_FRACTION = 0.1
 TOP_FACE_SIZE_PX = 3.0
 SILHOUETTE_MIN_OVERLAP = 0.85
+SILHOUETTE_SLACK_PX = 1.25
 # m: a larger polygon's good pose is kept while it puts the top face within this of the table's height (the pick's
 # max_height_error, beyond which its height rule refuses a certain pose; four of the table height's standard
 # deviations, table_height_sigma); beyond, its polygon holds a side face or misses a rim (a real cube's pose 15 cm
@@ -205,10 +207,10 @@ def _cube_seen_from_a_corner(detection, camera, side, height, table_plane, edge_
 def _silhouette_observation(detection, shape, camera, side, height, table_plane, edge_radius):
     """``detection`` posed as a ``shape`` block from its blob's silhouette on the table (method ``'silhouette'``:
     ``residual_px`` the mean gap between the fitted prism's outline and the blob's, no covariance; its vertices and
-    shape the seen top face's) when the fit overlaps the blob by ``SILHOUETTE_MIN_OVERLAP``; else None."""
+    shape the seen top face's) when the fit overlaps the blob by ``silhouette_min_overlap``; else None."""
     outline = detection.blob_contour if detection.blob_contour is not None else detection.contour
     fit = silhouette.fit_on_table(outline, camera, models.model_for(shape, side, height), table_plane)
-    if fit is None or fit.overlap < SILHOUETTE_MIN_OVERLAP:
+    if fit is None or fit.overlap < silhouette_min_overlap(outline):
         return None
     seen = models.seen_model(shape, side, height, edge_radius)
     T = fit.T_camera_block.copy()
@@ -217,6 +219,17 @@ def _silhouette_observation(detection, shape, camera, side, height, table_plane,
     seen_detection = dataclasses.replace(detection, shape=shape, vertices_px=vertices,
                                          centroid_px=vertices.mean(axis=0))
     return BlockObservation(seen_detection, pose.PoseEstimate(T, fit.gap_px, 'silhouette'))
+
+
+def silhouette_min_overlap(outline):
+    """The intersection over union a silhouette fit must reach on the blob ``outline`` ((M, 1, 2) px) to be taken:
+    ``SILHOUETTE_MIN_OVERLAP``, or, on a blob small enough, that of an outline ``SILHOUETTE_SLACK_PX`` off the
+    blob's all round (1 - slack x perimeter / area, to first order): a pixel of blur, mask or fit error all round a
+    16 px die is 0.25 of it, 0.1 of a 40 px block's (docs/perception.md, "A small blob's overlap", session 27)."""
+    area = cv2.contourArea(outline)
+    if area <= 0.0:
+        return SILHOUETTE_MIN_OVERLAP
+    return min(SILHOUETTE_MIN_OVERLAP, 1.0 - SILHOUETTE_SLACK_PX * cv2.arcLength(outline, True) / area)
 
 
 def _height_error_m(estimate, table_plane, height):

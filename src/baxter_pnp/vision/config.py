@@ -179,6 +179,8 @@ class VisionConfig(Parameters):
     morphology_kernel_px: int = 3
     laplacian_sharpening: bool = True
     min_area_px: float = 100.0
+    min_triangle_area_px: float = 100.0
+    min_triangle_quality: float = 0.0
     approx_epsilon_fraction: float = 0.02
     merge_distance_fraction: float = 0.05
     cut_corner_area_fraction: float = 0.04
@@ -203,6 +205,9 @@ class VisionConfig(Parameters):
         self.require(self.saturation_epsilon > 0, 'saturation_epsilon', 'must be > 0')
         self.require(self.lowpass_b >= 0, 'lowpass_b', 'must be >= 0')
         self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
+        self.require(0.0 < self.min_triangle_area_px <= self.min_area_px, 'min_triangle_area_px',
+                     'must be in (0, min_area_px]')
+        self.require(0.0 <= self.min_triangle_quality <= 1.0, 'min_triangle_quality', 'must be in [0, 1]')
         self.require(self.cut_corner_clear_area_fraction >= self.cut_corner_area_fraction,
                      'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
         self.require(self.cut_corner_clear_max_size_px >= 0, 'cut_corner_clear_max_size_px', 'must be >= 0')

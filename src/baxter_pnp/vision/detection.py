@@ -212,7 +212,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
             continue
         mask = open_close(raw_mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
-        for blob in find_blobs(binary, config.min_area_px):
+        for blob in find_blobs(binary, config.min_triangle_area_px):
             detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs)
             if detection is None or (config.pipeline == 'chroma' and (
                     colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill
@@ -254,7 +254,7 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
     binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
     good = [tuple(map(float, d.centroid_px - offset)) for d in found
             if d.colour == colour and d.quality >= config.chroma.weak_min_quality]
-    for blob in find_blobs(binary, config.min_area_px):
+    for blob in find_blobs(binary, config.min_triangle_area_px):
         if any(cv2.pointPolygonTest(blob, centre, False) >= 0 for centre in good):
             continue
         inside = np.zeros(weak.shape, np.uint8)
@@ -278,10 +278,13 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
 def _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs=None):
     """The detection of ``blob`` (a contour in the region whose origin is ``offset`` and whose HSV is ``hsv``): its
     top face's polygon (``_polygon_detection``), with the blob's outline when the face was split off it; None when
-    there is none or its shape is not in ``shapes``."""
+    there is none, its shape is not in ``shapes``, or the blob is under ``min_area_px`` and no triangle of
+    ``min_triangle_quality`` (blobs from ``min_triangle_area_px`` are looked at: a 15 px triangle's)."""
     outline = isolate_top_face(blob, hsv, config.top_face) if config.top_face.enabled else blob
     detection = _polygon_detection(image_bgr, outline, offset, colour, config, hsv[..., 2], discs)
-    if detection is None or detection.shape not in shapes:
+    if (detection is None or detection.shape not in shapes
+            or (cv2.contourArea(blob) < config.min_area_px
+                and (detection.shape != 'triangle' or detection.quality < config.min_triangle_quality))):
         return None
     if outline is not blob:
         detection = dataclasses.replace(detection, blob_contour=(blob + offset).astype(np.int32))

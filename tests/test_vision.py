@@ -67,6 +67,8 @@ def test_default_config_is_the_thesis_pipeline(config):
     ({'subpixel': {'passes': 1.5}}, r'subpixel.passes: must be an integer \(got 1.5\)'),
     ({'subpixel': {'passes': 0}}, r'subpixel.passes: must be >= 1'),
     ({'border_edge_max_rms_px': 0}, 'border_edge_max_rms_px: must be > 0'),
+    ({'min_triangle_area_px': 0}, 'min_triangle_area_px: must be > 0'),
+    ({'min_triangle_quality': 1.5}, r'min_triangle_quality: must be in \[0, 1\]'),
     ({'roi': {'downsample': 0}}, 'roi.downsample: must be >= 1'),
     ({'side_face_cut': {'max_depth_fraction': 0.6}}, r'side_face_cut.max_depth_fraction: must be in \(0, 0.5\)'),
     ({'side_face_cut': {'min_agreement': 0}}, r'side_face_cut.min_agreement: must be in \(0, 1\]'),

@@ -205,8 +205,7 @@ class VisionConfig(Parameters):
         self.require(self.saturation_epsilon > 0, 'saturation_epsilon', 'must be > 0')
         self.require(self.lowpass_b >= 0, 'lowpass_b', 'must be >= 0')
         self.require(self.morphology_kernel_px >= 1, 'morphology_kernel_px', 'must be >= 1')
-        self.require(0.0 < self.min_triangle_area_px <= self.min_area_px, 'min_triangle_area_px',
-                     'must be in (0, min_area_px]')
+        self.require(self.min_triangle_area_px > 0.0, 'min_triangle_area_px', 'must be > 0')
         self.require(0.0 <= self.min_triangle_quality <= 1.0, 'min_triangle_quality', 'must be in [0, 1]')
         self.require(self.cut_corner_clear_area_fraction >= self.cut_corner_area_fraction,
                      'cut_corner_clear_area_fraction', 'must be >= cut_corner_area_fraction')
@@ -215,6 +214,11 @@ class VisionConfig(Parameters):
         self.require(0.0 <= self.min_aspect < 1.0, 'min_aspect', 'must be in [0, 1) (0 = off)')
         self.require(self.pipeline in PIPELINES, 'pipeline', 'must be one of %s' % ', '.join(PIPELINES))
         self.require(bool(self.colours), 'colours', 'must define at least one colour')
+
+    @property
+    def min_blob_area_px(self):
+        """px^2: the smallest blob looked at (``min_area_px``, or a triangle's ``min_triangle_area_px`` if smaller)."""
+        return min(self.min_area_px, self.min_triangle_area_px)
 
     def colour_names(self):
         """Names of the colours of the active pipeline, in YAML order."""

@@ -212,7 +212,7 @@ def _detect_in_region(image_bgr, region, segmenter, colours, shapes, config):
             continue
         mask = open_close(raw_mask, config.morphology_kernel_px)
         binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
-        for blob in find_blobs(binary, config.min_triangle_area_px):
+        for blob in find_blobs(binary, config.min_blob_area_px):
             detection = _blob_polygon(image_bgr, blob, offset, colour, config, hsv, shapes, discs)
             if detection is None or (config.pipeline == 'chroma' and (
                     colour_fill(raw_mask, detection.vertices_px - offset) < config.chroma.min_fill
@@ -254,7 +254,7 @@ def _with_weak_detections(image_bgr, lab, colour, offset, hsv, found, discs, sha
     binary = laplacian_sharpen(mask) if config.laplacian_sharpening else mask
     good = [tuple(map(float, d.centroid_px - offset)) for d in found
             if d.colour == colour and d.quality >= config.chroma.weak_min_quality]
-    for blob in find_blobs(binary, config.min_triangle_area_px):
+    for blob in find_blobs(binary, config.min_blob_area_px):
         if any(cv2.pointPolygonTest(blob, centre, False) >= 0 for centre in good):
             continue
         inside = np.zeros(weak.shape, np.uint8)

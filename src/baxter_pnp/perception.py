@@ -225,7 +225,7 @@ def silhouette_min_overlap(outline):
     """The intersection over union a silhouette fit must reach on the blob ``outline`` ((M, 1, 2) px) to be taken:
     ``SILHOUETTE_MIN_OVERLAP``, or, on a blob small enough, that of an outline ``SILHOUETTE_SLACK_PX`` off the
     blob's all round (1 - slack x perimeter / area, to first order): a pixel of blur, mask or fit error all round a
-    16 px die is 0.25 of it, 0.1 of a 40 px block's (docs/perception.md, "A small blob's overlap", session 27)."""
+    16 px die is 0.25 of it, 0.1 of a 40 px block's (docs/perception.md, "A small blob's silhouette overlap")."""
     area = cv2.contourArea(outline)
     if area <= 0.0:
         return SILHOUETTE_MIN_OVERLAP

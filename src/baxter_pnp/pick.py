@@ -73,6 +73,8 @@ class PickConfig(Parameters):
     table_height_sigma: float = 0.005       # how well the table top's height is known (m; table_top_z, hand-eye): a
                                             # believed target's position is updated with it (task.target.on_the_table;
                                             # 0: off)
+    gripper_gap: List[float] = field(default_factory=lambda: list(ELECTRIC_GRIPPER_GAP))   # the electric gripper's
+                                            # jaw gap closed and fully open (m): its fingers' slot (grasp_width)
 
     def validate(self):
         require = self.require
@@ -101,6 +103,18 @@ class PickConfig(Parameters):
         require(len(self.gain) == 3 and self.gain[0] >= self.gain[1] > 0, 'gain',
                 'must be [gain at 0, gain at infinity, slope at 0] with gain at 0 >= gain at infinity > 0')
         require(self.estimator in ('sqp', 'ippe', 'sqpnp'), 'estimator', 'must be sqp, ippe or sqpnp')
+        require(len(self.gripper_gap) == 2 and all(map(math.isfinite, self.gripper_gap))
+                and 0.0 <= self.gripper_gap[0] < self.gripper_gap[1], 'gripper_gap',
+                'must be [closed, open] jaw gaps in metres, 0 <= closed < open')
+        width = grasp_width(self.side_length, self.model.symmetry_angle)
+        closed, opened = self.gripper_gap
+        require(width >= closed + GRIP_SQUEEZE_M, 'side_length',
+                'a %s of side %.4f m is %.4f m across the fingers, less than the gripper closed (%.4f m) plus the '
+                '%.0f mm the pads need to grip: the fingers would close past it (move them to a narrower slot and '
+                'set gripper_gap, README "On a real Baxter")' % (self.shape, self.side_length, width, closed,
+                                                                  1000 * GRIP_SQUEEZE_M))
+        require(width <= opened, 'side_length', 'a %s of side %.4f m is %.4f m across the fingers, more than the '
+                'gripper opens (%.4f m)' % (self.shape, self.side_length, width, opened))
 
     @property
     def model(self):
@@ -154,9 +168,15 @@ class PickResult:
 
 # ----------------------------------------------------------------------------------------------- geometry
 
-# Jaw gap of the electric gripper with the simulator's fingers (extended_narrow, slot 2, paddle tips),
-# fully open (m). See shared/reference/baxter_kinematics.md section 3.
-ELECTRIC_GRIPPER_MAX_OPENING = 0.0577
+# Jaw gap (m) of the electric gripper with the simulator's fingers (extended_narrow, slot 2, paddle tips), closed and
+# fully open: 0.016 + 2 q, q the finger joint's 0-0.020833 m (shared/reference/baxter_kinematics.md section 3); each
+# slot nearer the middle closes 19 mm narrower (slot 1: 0-0.0387 m).
+ELECTRIC_GRIPPER_GAP = (0.016, 0.0577)
+ELECTRIC_GRIPPER_MAX_OPENING = ELECTRIC_GRIPPER_GAP[1]
+# m: a block must hold the pads this much wider apart than closed to be gripped: their compliance (2 mm over both in
+# the fake, urdf/baxter.urdf's contact stiffness) and the gripper's closed reading (2 % of the travel: 0.8 mm). In the
+# fake a 19 mm square grips, an 18.4 mm one does not (docs/trials.md, session 27).
+GRIP_SQUEEZE_M = 0.003
 
 
 def grasp_width(side_length, symmetry_angle):
@@ -224,7 +244,7 @@ def hover_pose(T_base_block, config, T_base_gripper):
 def grasp_pose(T_base_block, config, T_base_gripper):
     """Gripper pose to close at: fingertips ``grasp_depth`` below the top face, faces aligned."""
     return grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
-                            config.model.symmetry_angle, T_base_gripper)
+                            config.model.symmetry_angle, T_base_gripper, max_opening=config.gripper_gap[1])
 
 
 def converged(T_current, T_goal, config):

@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from baxter_pnp import pick
+from baxter_pnp.params import ParameterError
 from baxter_pnp.bench.ground_truth import (LIFT_THRESHOLD, GroundTruthMonitor, block_in_gripper_mm,
                                            pre_close_sample, write_ground_truth)
 from baxter_pnp.bench.records import format_number, percentile, write_rows
@@ -323,6 +324,26 @@ def write_csv(rows, path):
 
 # ============================================================================================ command line
 
+SIZE_RANGE_M = (0.03, 0.05)     # m: the side range of the trial scenes' blocks (``trial_scenes.random_scene``)
+
+
+def _size_range(text):
+    """``--sizes MIN,MAX`` (m) -> (min, max); argparse's error unless MIN <= MAX and the pick's gripper grips a square
+    of either side (``pick.PickConfig``'s ``gripper_gap``)."""
+    try:
+        low, high = (float(value) for value in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected MIN,MAX in metres, got {text!r}') from None
+    if not low <= high:
+        raise argparse.ArgumentTypeError(f'need MIN <= MAX, got {text!r}')
+    for side in (low, high):
+        try:
+            pick.PickConfig.from_dict({'side_length': side})
+        except ParameterError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+    return low, high
+
+
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='run_trials.py', description=(
         'Batch pick trials on the fake Baxter: N random scenes per start pose, each picked in each mode, scored '
@@ -332,6 +353,9 @@ def parse_args(argv):
     parser.add_argument('--mode', choices=MODES + ('all',), help='default: all (soak: pbvs)')
     parser.add_argument('--start-pose', choices=START_POSES + ('both',), help='default: both (soak: down)')
     parser.add_argument('--step-fraction', type=float, default=0.35, help='PBVS step fraction (default %(default)s)')
+    parser.add_argument('--sizes', metavar='MIN,MAX', type=_size_range, default=SIZE_RANGE_M,
+                        help='side range (m) the blocks are drawn from, 20 mm tall (default %g,%g; small blocks: '
+                             '0.019,0.025, the smallest the gripper grips, pick.GRIP_SQUEEZE_M)' % SIZE_RANGE_M)
     parser.add_argument('--distractors', type=int, default=0, help='other blocks per scene (default %(default)s)')
     parser.add_argument('--distractor-same-colour', action='store_true',
                         help="one more block per scene of the target's colour but not a square")
@@ -357,9 +381,9 @@ def parse_args(argv):
     args.timeout = args.timeout or (300.0 if args.task == 'pick' else 900.0)
     if args.task != 'pick':
         if (args.soak is not None or args.place is not None or args.distractors or args.distractor_same_colour
-                or args.faults or args.from_csv or args.start_pose):
-            parser.error('--task %s takes no --soak, --place, --distractors, --faults, --from-csv or --start-pose'
-                         % args.task)
+                or args.faults or args.from_csv or args.start_pose or args.sizes != SIZE_RANGE_M):
+            parser.error('--task %s takes no --soak, --place, --distractors, --faults, --from-csv, --start-pose or '
+                         '--sizes' % args.task)
         args.mode = args.mode or 'pbvs'
         return args
     if args.soak is not None:
@@ -367,8 +391,9 @@ def parse_args(argv):
             parser.error('--soak needs at least 2 cycles')
         if args.mode == 'all' or args.start_pose == 'both':
             parser.error('--soak runs one mode from one start pose')
-        if args.distractors or args.distractor_same_colour or args.from_csv or args.appearance == 'random':
-            parser.error('--soak takes no distractors, no --appearance random and no --from-csv')
+        if (args.distractors or args.distractor_same_colour or args.from_csv or args.appearance == 'random'
+                or args.sizes != SIZE_RANGE_M):
+            parser.error('--soak takes no distractors, no --appearance random, no --sizes and no --from-csv')
         args.mode, args.start_pose = args.mode or 'pbvs', args.start_pose or 'down'
         args.place = args.place or list(SOAK_PLACE_XY)
     else:
@@ -410,7 +435,8 @@ def main(argv=None):
     for start_pose in start_poses:
         for trial in range(args.trials):
             scene_seed = args.seed * 100000 + START_POSES.index(start_pose) * 10000 + trial
-            scene = random_scene(np.random.default_rng(scene_seed), start_pose, distractors=args.distractors,
+            scene = random_scene(np.random.default_rng(scene_seed), start_pose, size_range=args.sizes,
+                                 distractors=args.distractors,
                                  same_colour_distractor=args.distractor_same_colour, faults=faults,
                                  appearance=trial_appearance(args.appearance, scene_seed),
                                  clutter_rng=trial_clutter_rng(args.appearance, scene_seed), place_xy=args.place)

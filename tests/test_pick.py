@@ -32,6 +32,24 @@ def test_config_validation_names_the_key():
             pick.PickConfig.from_dict(values)
 
 
+def test_a_block_the_gripper_cannot_grip_is_refused_before_the_robot_is_asked():
+    """The jaw gap closed and open (``gripper_gap``, slot 2's 16 / 57.7 mm by default): a block across the fingers
+    narrower than closed + 3 mm (the pads' squeeze) or wider than open is a ParameterError naming ``side_length``;
+    a 16 mm die is gripped with the fingers in slot 1."""
+    assert pick.PickConfig.from_dict({'side_length': 0.019}).gripper_gap == [0.016, 0.0577]
+    for values, why in (({'side_length': 0.0185}, 'less than the gripper closed'),
+                        ({'side_length': 0.021, 'shape': 'triangle'}, 'less than the gripper closed'),   # 18.2 mm
+                        ({'side_length': 0.04, 'shape': 'hexagon'}, 'more than the gripper opens'),      # 69 mm
+                        ({'side_length': 0.06}, 'more than the gripper opens')):
+        with pytest.raises(ValueError, match='side_length: .*' + why):
+            pick.PickConfig.from_dict(values)
+    die = pick.PickConfig.from_dict({'side_length': 0.016, 'edge_radius': 0.0015, 'gripper_gap': [0.0, 0.0387]})
+    assert die.side_length == 0.016
+    for gap in ([0.02, 0.01], [0.016], [-0.001, 0.05], [0.0, float('nan')]):
+        with pytest.raises(ValueError, match='gripper_gap'):
+            pick.PickConfig.from_dict({'gripper_gap': gap})
+
+
 def test_table_plane_in_camera_contains_table_points():
     T_base_camera = gripper_down_at(0.6, 0.2, 0.3) @ T_GRIPPER_CAMERA
     plane = models.table_plane_in_camera(T_base_camera, models.Plane.level(-0.15))

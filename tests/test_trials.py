@@ -427,6 +427,19 @@ def test_soak_options():
             trials.parse_args(bad)
 
 
+def test_sizes_option_draws_the_blocks_sides_the_gripper_grips():
+    assert trials.parse_args([]).sizes == trials.SIZE_RANGE_M
+    args = trials.parse_args(['--sizes', '0.019,0.025'])
+    assert args.sizes == (0.019, 0.025)
+    for bad in (['--sizes', '0.016,0.025'], ['--sizes', '0.03,0.02'], ['--sizes', '0.03,0.07'], ['--sizes', 'big'],
+                ['--task', 'sort', '--sizes', '0.02,0.03'], ['--soak', '3', '--sizes', '0.02,0.03']):
+        with pytest.raises(SystemExit):
+            trials.parse_args(bad)
+    for seed in range(6):
+        scene = trial_scenes.random_scene(np.random.default_rng(seed), 'down', size_range=args.sizes)
+        assert 0.019 <= scene['objects'][0]['side'] <= 0.025
+
+
 def test_a_two_cycle_soak_in_one_session(ros_node, ros_master, tmp_path):
     """``pick_square.py --cycles 2`` through the soak runner: both cycles verified by the ground truth, exit status 0
     (every cycle succeeded; ``tests/test_cycles.py`` has a failed cycle and exit status 1). An application that

@@ -71,6 +71,12 @@ def test_hover_and_grasp_poses_centre_and_align_the_gripper():
     closing_axis = T_hover[:3, 1]                                        # fingers close along gripper y
     block_faces = [T_base_block[:3, 0], T_base_block[:3, 1]]
     assert max(abs(closing_axis @ f) for f in block_faces) == pytest.approx(1.0)
+    # a floor above the grasp (the block estimated lower than it stands) raises it there, orientation kept
+    raised = pick.grasp_pose(T_base_block, config, T_hover, floor_z=T_grasp[2, 3] + 0.003)
+    assert raised[2, 3] == T_grasp[2, 3] + 0.003
+    np.testing.assert_array_equal(raised[:3, :3], T_grasp[:3, :3])
+    np.testing.assert_array_equal(pick.grasp_pose(T_base_block, config, T_hover, floor_z=T_grasp[2, 3] - 0.003),
+                                  T_grasp)
 
 
 def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():

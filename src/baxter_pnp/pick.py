@@ -241,10 +241,15 @@ def hover_pose(T_base_block, config, T_base_gripper):
                             model.symmetry_angle, T_base_gripper)
 
 
-def grasp_pose(T_base_block, config, T_base_gripper):
-    """Gripper pose to close at: fingertips ``grasp_depth`` below the top face, faces aligned."""
-    return grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
-                            config.model.symmetry_angle, T_base_gripper, max_opening=config.gripper_gap[1])
+def grasp_pose(T_base_block, config, T_base_gripper, floor_z=None):
+    """Gripper pose to close at: fingertips ``grasp_depth`` below the top face, faces aligned; raised to ``floor_z``
+    (m, base z; None: no floor) where that is lower: a block estimated a few millimetres lower than it stands is
+    still gripped above the table's safety margin instead of refused (the fingers close on its sides)."""
+    T_grasp = grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
+                         config.model.symmetry_angle, T_base_gripper, max_opening=config.gripper_gap[1])
+    if floor_z is not None and T_grasp[2, 3] < floor_z:
+        T_grasp[2, 3] = floor_z
+    return T_grasp
 
 
 def converged(T_current, T_goal, config):

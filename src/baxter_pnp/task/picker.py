@@ -17,6 +17,7 @@ from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
 # the log's note on a pose taken on the table (perception.ON_THE_TABLE_METHODS)
+GRASP_FLOOR_CLEARANCE = 0.001    # m above the table + tip_margin a grasp is raised to (the arm's IK lands within it)
 _ON_THE_TABLE = {'on_table': ' (posed by its top face on the table)',
                  'silhouette': ' (posed by its silhouette on the table)'}
 
@@ -375,7 +376,14 @@ class Picker:
     def grasp(self, T_base_block):
         """Descend, close, verify (gripper state, then lift and look). True on a verified grasp."""
         c, gripper, limb = self.config, self.session.gripper, self.session.limb
-        T_grasp = pick.grasp_pose(T_base_block, c, limb.endpoint_pose())
+        floor_z = (self.session.table.z_at(T_base_block[:2, 3]) + self.session.config.tip_margin
+                   + GRASP_FLOOR_CLEARANCE)
+        T_grasp = pick.grasp_pose(T_base_block, c, limb.endpoint_pose(), floor_z)
+        if T_grasp[2, 3] == floor_z:
+            rospy.loginfo('pick: the block is estimated lower than grasp_depth allows: the grasp raised to %.1f mm '
+                          'above the table (tip_margin + %.0f mm)'
+                          % (1000.0 * (self.session.config.tip_margin + GRASP_FLOOR_CLEARANCE),
+                             1000.0 * GRASP_FLOOR_CLEARANCE))
         self.motion.move_to_pose(T_grasp, 'descend to grasp')
         gripper.close(block=True, timeout=3.0)
         if not gripper.gripping() or gripper.missed():

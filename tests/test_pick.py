@@ -77,6 +77,8 @@ def test_hover_and_grasp_poses_centre_and_align_the_gripper():
     np.testing.assert_array_equal(raised[:3, :3], T_grasp[:3, :3])
     np.testing.assert_array_equal(pick.grasp_pose(T_base_block, config, T_hover, floor_z=T_grasp[2, 3] - 0.003),
                                   T_grasp)
+    top_z = T_base_block[2, 3]      # a floor less than MIN_GRIP_DEPTH under the top face: left for the safety check
+    np.testing.assert_array_equal(pick.grasp_pose(T_base_block, config, T_hover, floor_z=top_z - 0.002), T_grasp)
 
 
 def test_pbvs_target_moves_a_fraction_and_snaps_near_the_goal():

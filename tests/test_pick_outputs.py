@@ -393,13 +393,15 @@ def test_bad_parameters_exit_2_before_the_robot_is_touched(ros_master, ros_node,
         fake.stop()
 
 
-def test_table_top_z_is_the_safety_floor(ros_master, ros_node, fake_baxter, tmp_path):
-    """``--table-top-z`` 1 cm above the real table: the block (1 cm lower than the app expects, within
-    max_height_error: still a target) needs the tip 7 mm below the floor's limit (table_top_z + tip_margin), so the
-    descent to grasp it is refused, the run fails cleanly (exit 1, unsafe_command, retreat, block untouched) and the
-    tip, monitored on the fake's endpoint state, never went below that limit. (README, "On a real Baxter" 4b:
-    ``table_top_z`` is the safety floor.)"""
-    table_top_z, tip_margin = TABLE_TOP_Z + 0.01, 0.005
+@pytest.mark.parametrize('above, picked', [(0.01, True), (0.014, False)])
+def test_table_top_z_is_the_safety_floor(ros_master, ros_node, fake_baxter, tmp_path, above, picked):
+    """``--table-top-z`` ``above`` the real table: the block (that much lower than the app expects, within
+    max_height_error: still a target) needs the tip below the floor's limit (table_top_z + tip_margin). 1 cm: the
+    grasp is raised to 1 mm above that limit, still 4 mm below the block's top face (``pick.MIN_GRIP_DEPTH`` 3
+    mm), and the block is picked there; 14 mm: the limit is 1 mm under the top face, the descent is refused, the run fails
+    cleanly (exit 1, unsafe_command, retreat, block untouched). Either way the tip, monitored on the fake's endpoint
+    state, never went below that limit. (README, "On a real Baxter" 4b: ``table_top_z`` is the safety floor.)"""
+    table_top_z, tip_margin = TABLE_TOP_Z + above, 0.005
     fake = fake_baxter('--real-time-factor', '0')
     watcher = GraphWatcher()
     try:
@@ -410,6 +412,10 @@ def test_table_top_z_is_the_safety_floor(ros_master, ros_node, fake_baxter, tmp_
         # the limit, on the true tip height (first: the claim itself); 0.5 mm for the endpoint state's joint noise
         assert watcher.lowest_tip_z >= table_top_z + tip_margin - 0.0005, \
             'the tip went down to %.4f m' % watcher.lowest_tip_z
+        if picked:
+            assert run.returncode == 0 and result['success'], log[-3000:]
+            assert 'the grasp raised to 6.0 mm above the table' in log
+            return
         assert run.returncode == 1, log[-3000:]
         assert not result['success'] and result['failure_reason'] == 'unsafe_command', log[-3000:]
         assert re.search(r'descend to grasp.*\n.*below the table top %.3f m \+ margin %.3f m'

@@ -177,6 +177,7 @@ ELECTRIC_GRIPPER_MAX_OPENING = ELECTRIC_GRIPPER_GAP[1]
 # the fake, urdf/baxter.urdf's contact stiffness) and the gripper's closed reading (2 % of the travel: 0.8 mm). In the
 # fake a 19 mm square grips, an 18.4 mm one does not (docs/trials.md, session 27).
 GRIP_SQUEEZE_M = 0.003
+MIN_GRIP_DEPTH = 0.003   # m: a grasp raised to the table's safety floor still closes this far below the top face
 
 
 def grasp_width(side_length, symmetry_angle):
@@ -243,11 +244,12 @@ def hover_pose(T_base_block, config, T_base_gripper):
 
 def grasp_pose(T_base_block, config, T_base_gripper, floor_z=None):
     """Gripper pose to close at: fingertips ``grasp_depth`` below the top face, faces aligned; raised to ``floor_z``
-    (m, base z; None: no floor) where that is lower: a block estimated a few millimetres lower than it stands is
-    still gripped above the table's safety margin instead of refused (the fingers close on its sides)."""
+    (m, base z; None: no floor) where that is lower and still ``MIN_GRIP_DEPTH`` below the top face: a block
+    estimated a few millimetres lower than it stands is still gripped above the table's safety margin instead of
+    refused (the fingers close on its sides); deeper, the pose stays below the floor, for the safety check to refuse."""
     T_grasp = grasp_goal(T_base_block, config.side_length, config.grasp_depth, 0.0,
                          config.model.symmetry_angle, T_base_gripper, max_opening=config.gripper_gap[1])
-    if floor_z is not None and T_grasp[2, 3] < floor_z:
+    if floor_z is not None and T_grasp[2, 3] < floor_z <= T_base_block[2, 3] - MIN_GRIP_DEPTH:
         T_grasp[2, 3] = floor_z
     return T_grasp
 

@@ -398,9 +398,10 @@ def test_table_top_z_is_the_safety_floor(ros_master, ros_node, fake_baxter, tmp_
     """``--table-top-z`` ``above`` the real table: the block (that much lower than the app expects, within
     max_height_error: still a target) needs the tip below the floor's limit (table_top_z + tip_margin). 1 cm: the
     grasp is raised to 1 mm above that limit, still 4 mm below the block's top face (``pick.MIN_GRIP_DEPTH`` 3
-    mm), and the block is picked there; 14 mm: the limit is 1 mm under the top face, the descent is refused, the run fails
-    cleanly (exit 1, unsafe_command, retreat, block untouched). Either way the tip, monitored on the fake's endpoint
-    state, never went below that limit. (README, "On a real Baxter" 4b: ``table_top_z`` is the safety floor.)"""
+    mm), and the block is picked there; 14 mm: the limit is 1 mm under the top face, the descent is refused, the
+    run fails cleanly (exit 1, unsafe_command, retreat, block untouched). Either way the tip, monitored on the fake's
+    endpoint state, never went below that limit. (README, "On a real Baxter" 4b: ``table_top_z`` is the safety
+    floor.)"""
     table_top_z, tip_margin = TABLE_TOP_Z + above, 0.005
     fake = fake_baxter('--real-time-factor', '0')
     watcher = GraphWatcher()

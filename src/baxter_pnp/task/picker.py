@@ -16,8 +16,8 @@ from baxter_pnp.task import target
 from baxter_pnp.task.session import TaskFailure
 from baxter_pnp.transforms import invert, pose_error
 
-# the log's note on a pose taken on the table (perception.ON_THE_TABLE_METHODS)
 GRASP_FLOOR_CLEARANCE = 0.001    # m above the table + tip_margin a grasp is raised to (the arm's IK lands within it)
+# the log's note on a pose taken on the table (perception.ON_THE_TABLE_METHODS)
 _ON_THE_TABLE = {'on_table': ' (posed by its top face on the table)',
                  'silhouette': ' (posed by its silhouette on the table)'}
 
